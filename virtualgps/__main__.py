@@ -1,0 +1,5 @@
+"""Allow ``python -m virtualgps``."""
+
+from virtualgps.cli import main
+
+raise SystemExit(main())
