@@ -1,0 +1,369 @@
+"""The pure receiver core: antenna poses + sky + profile + state + random generator -> fixes.
+
+One code path serves the live daemon (batches of one epoch), replay (thousands of epochs) and the
+gap tool. Nothing here touches files, clocks or sockets; the random generator and the receiver
+state are passed in and the new state is returned, so running N epochs at once gives the same
+numbers as running them one at a time (the generator is consumed identically: two uniforms per
+epoch, whether or not there is a fix).
+
+Per-epoch pipeline (DESIGN section 1): georeference -> satellite ECEF (SGP4) -> az/el ->
+elevation mask -> line of sight against the scene -> used satellites -> DOP -> error -> Fixes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+
+from virtualgps import geodesy
+from virtualgps.profiles import Profile
+from virtualgps.records import MODE_3D, MODE_NONE, QUALITY_GPS, QUALITY_NONE, Fixes
+
+
+class Ephemeris(Protocol):
+    """Satellite positions: a TLE constellation or the paper's lookup table."""
+
+    prn: np.ndarray
+
+    def sat_ecef_m(self, t_unix_s: np.ndarray) -> np.ndarray:
+        """(n_t, n_sat, 3) ECEF metres at UTC times (n_t,); NaN where unknown."""
+        ...
+
+
+class Occluder(Protocol):
+    """Line-of-sight queries in the scene's local ENU frame."""
+
+    def blocked(self, origins_enu_m: np.ndarray, dirs_enu: np.ndarray, cls: str = ...) -> np.ndarray:
+        """(m,) bool: does the ray from each origin along each direction hit the class?"""
+        ...
+
+
+@dataclass(frozen=True)
+class Georef:
+    """The geodetic point of the scene origin (the paper's "tag").
+
+    lat0_deg, lon0_deg : degrees, WGS-84; alt0_hae_m : metres above the ellipsoid
+    """
+
+    lat0_deg: float
+    lon0_deg: float
+    alt0_hae_m: float
+
+
+@dataclass(frozen=True)
+class ReceiverState:
+    """What a receiver carries from one epoch to the next.
+
+    The paper's model is memoryless; the state still travels through every call so that
+    time-correlated effects (tracking, Gauss-Markov errors, start-up) slot in without reshaping.
+
+    n_epochs : epochs simulated so far
+    last_t_unix_s : time of the last simulated epoch (NaN before the first)
+    """
+
+    n_epochs: int = 0
+    last_t_unix_s: float = float("nan")
+
+
+@dataclass(frozen=True)
+class Receiver:
+    """Everything fixed during a run: profile, ephemeris, scene and georeference.
+
+    sky_shift_s : seconds subtracted from the epoch time before propagating satellites (the
+        sky-time policy: 0 for the true sky; a whole number of sidereal days when the simulated
+        time lies far from the TLE epoch)
+    """
+
+    profile: Profile
+    ephemeris: Ephemeris
+    scene: Occluder | None
+    georef: Georef
+    sky_shift_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Sky:
+    """What the antenna sees at each epoch, over ``n_sat`` satellites.
+
+    Arrays have the leading shape of the antenna positions, ``(..., n_t)``, then ``n_sat``.
+    lat_deg, lon_deg, alt_hae_m : (..., n_t) the antenna, geodetic
+    az_deg, el_deg : (..., n_t, n_sat) degrees, at the antenna
+    los_enu : (..., n_t, n_sat, 3) unit vectors antenna -> satellite, antenna ENU frame
+    above_mask : (..., n_t, n_sat) bool, elevation >= the profile's mask
+    blocked : (..., n_t, n_sat) bool, line of sight hits an occluder (False below the mask)
+    """
+
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_hae_m: np.ndarray
+    az_deg: np.ndarray
+    el_deg: np.ndarray
+    los_enu: np.ndarray
+    above_mask: np.ndarray
+    blocked: np.ndarray
+
+
+def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
+    """The paper's noise sigma as a function of the satellites seen (Eq. 1-3).
+
+    m = (maxNoise - minNoise) / (4 - 12), b = maxNoise - 4 m, sigma = (m n + b) / 3:
+    maxNoise/3 at 4 satellites, minNoise/3 at 12. We clip n to [4, 12]: fewer than 4 gives no
+    fix, and a 12-channel receiver (GSA has 12 fields) uses at most 12.
+
+    Parameters
+    ----------
+    n_sats : (...) int, satellites used
+    max_noise_m, min_noise_m : float, metres
+
+    Returns
+    -------
+    sigma_m : (...) float, metres, per horizontal axis
+    """
+    slope = (max_noise_m - min_noise_m) / (4.0 - 12.0)  # Eq. 1
+    intercept = max_noise_m - 4.0 * slope  # Eq. 2
+    n = np.clip(np.asarray(n_sats, dtype=float), 4.0, 12.0)
+    return (slope * n + intercept) / 3.0  # Eq. 3
+
+
+def box_muller(u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two independent standard normal deviates from two uniforms (Box & Muller 1958).
+
+    The paper draws its Gaussian noise this way; we keep it so a seed reproduces the same
+    numbers whatever numpy's own normal sampler does across versions.
+
+    Parameters
+    ----------
+    u1, u2 : (...) float, uniform on [0, 1)
+
+    Returns
+    -------
+    z0, z1 : (...) float, standard normal
+    """
+    radius = np.sqrt(-2.0 * np.log1p(-u1))  # log(1 - u1): u1 may be 0, never 1
+    angle = 2.0 * np.pi * u2
+    return radius * np.cos(angle), radius * np.sin(angle)
+
+
+def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dilutions of precision of the used satellites' geometry.
+
+    G has a row [-e, -n, -u, 1] per used satellite (unit line of sight, receiver clock);
+    Q = (G^T G)^-1 in the local ENU frame; HDOP = sqrt(Qee + Qnn), VDOP = sqrt(Quu),
+    PDOP = sqrt(Qee + Qnn + Quu) (Misra & Enge, Global Positioning System, section 6.1.3).
+
+    Parameters
+    ----------
+    los_enu : (..., n_sat, 3) unit vectors to the satellites, ENU
+    used : (..., n_sat) bool
+
+    Returns
+    -------
+    hdop, vdop, pdop : (...) float; NaN with fewer than 4 used satellites or a singular geometry
+    """
+    w = used.astype(float)[..., None]
+    g = np.concatenate([-np.nan_to_num(los_enu), np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
+    gw = g * w
+    normal = np.einsum("...si,...sj->...ij", gw, g)
+    ok = used.sum(axis=-1) >= 4
+    ok &= np.abs(np.linalg.det(np.where(ok[..., None, None], normal, np.eye(4)))) > 1e-9
+    q = np.linalg.inv(np.where(ok[..., None, None], normal, np.eye(4)))
+    qe, qn, qu = q[..., 0, 0], q[..., 1, 1], q[..., 2, 2]
+    nan = np.where(ok, 1.0, np.nan)
+    return np.sqrt(qe + qn) * nan, np.sqrt(qu) * nan, np.sqrt(qe + qn + qu) * nan
+
+
+def antenna_geodetic(
+    antenna_enu_m: np.ndarray, georef: Georef, mode: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodetic position of antenna points given in the scene's ENU frame.
+
+    Parameters
+    ----------
+    antenna_enu_m : (..., 3) metres, scene ENU (origin at the georeference point)
+    georef : the scene origin
+    mode : "wgs84" (exact) or "flat_earth" (the paper's conversion and wraps)
+
+    Returns
+    -------
+    lat_deg, lon_deg, alt_hae_m : (...) float
+    """
+    enu = np.asarray(antenna_enu_m, dtype=float)
+    if mode == "flat_earth":
+        lat, lon = geodesy.flat_earth_to_geodetic(
+            enu[..., 0], enu[..., 1], georef.lat0_deg, georef.lon0_deg
+        )
+        return lat, lon, georef.alt0_hae_m + enu[..., 2]
+    return geodesy.enu_to_geodetic(enu, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+
+
+def compute_sky(
+    rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray
+) -> Sky:
+    """Satellite directions, the elevation mask and line-of-sight blocking at each epoch.
+
+    Parameters
+    ----------
+    rx : the receiver (ephemeris, scene, georeference, profile)
+    t_unix_s : (n_t,) float, UTC seconds (the simulated clock)
+    antenna_enu_m : (..., n_t, 3) float, metres, scene ENU
+
+    Returns
+    -------
+    sky : Sky
+    """
+    t = np.atleast_1d(np.asarray(t_unix_s, dtype=float))
+    ant = np.asarray(antenna_enu_m, dtype=float)
+    lat, lon, alt = antenna_geodetic(ant, rx.georef, rx.profile.georef)
+    ant_ecef = geodesy.geodetic_to_ecef(lat, lon, alt)  # (..., n_t, 3)
+    sat_ecef = rx.ephemeris.sat_ecef_m(t - rx.sky_shift_s)  # (n_t, n_sat, 3)
+    d_ecef = sat_ecef - ant_ecef[..., None, :]  # (..., n_t, n_sat, 3)
+    rng_m = np.linalg.norm(d_ecef, axis=-1, keepdims=True)
+    u_ecef = d_ecef / rng_m
+    rot = geodesy.ecef_to_enu_matrix(lat, lon)  # (..., n_t, 3, 3)
+    los_enu = np.einsum("...ij,...sj->...si", rot, u_ecef)
+    az, el, _ = geodesy.enu_to_azel(los_enu)
+    with np.errstate(invalid="ignore"):
+        above = el >= rx.profile.sky.elevation_mask_deg  # NaN (no ephemeris) -> False
+    blocked = np.zeros_like(above)
+    if rx.scene is not None and above.any():
+        # Rays are cast in the scene's frame: the ENU frame of the georeference point, whose
+        # axes differ from the antenna's local ENU by the Earth's curvature (~0.009 deg per km).
+        rot0 = geodesy.ecef_to_enu_matrix(rx.georef.lat0_deg, rx.georef.lon0_deg)
+        idx = np.nonzero(above)
+        dirs = u_ecef[idx] @ rot0.T
+        origins = np.broadcast_to(ant[..., None, :], above.shape + (3,))[idx]
+        hit = rx.scene.blocked(origins, dirs, cls="occluder")
+        if rx.profile.sky.foliage == "block":
+            hit = hit | rx.scene.blocked(origins, dirs, cls="foliage")
+        blocked[idx] = hit
+    return Sky(lat, lon, alt, az, el, los_enu, above, blocked)
+
+
+def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.ndarray:
+    """The satellites a receiver with ``max_channels`` channels uses: the highest seen ones.
+
+    Parameters
+    ----------
+    seen : (..., n_sat) bool, satellites the receiver could use
+    el_deg : (..., n_sat) float, degrees
+    max_channels : int
+
+    Returns
+    -------
+    used : (..., n_sat) bool, at most ``max_channels`` True per epoch
+    """
+    if seen.shape[-1] <= max_channels:
+        return seen.copy()
+    key = np.where(seen, np.nan_to_num(el_deg, nan=-90.0), -np.inf)
+    order = np.argsort(-key, axis=-1, kind="stable")
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(seen.shape[-1]), axis=-1)
+    return seen & (rank < max_channels)
+
+
+def cn0_from_elevation_dbhz(el_deg: np.ndarray, horizon_dbhz: float, zenith_dbhz: float) -> np.ndarray:
+    """C/N0 of a directly received satellite: linear in sin(elevation).
+
+    Parameters
+    ----------
+    el_deg : (...) float, degrees
+    horizon_dbhz, zenith_dbhz : float, dB-Hz at 0 and 90 deg
+
+    Returns
+    -------
+    cn0_dbhz : (...) float, dB-Hz
+    """
+    s = np.sin(np.radians(np.clip(el_deg, 0.0, 90.0)))
+    return horizon_dbhz + (zenith_dbhz - horizon_dbhz) * s
+
+
+def simulate(
+    rx: Receiver,
+    t_unix_s: np.ndarray,
+    antenna_enu_m: np.ndarray,
+    vel_enu_mps: np.ndarray,
+    pose_valid: np.ndarray,
+    state: ReceiverState,
+    rng: np.random.Generator,
+) -> tuple[Fixes, ReceiverState]:
+    """Run the receiver over ``n_t`` epochs.
+
+    Parameters
+    ----------
+    rx : the receiver
+    t_unix_s : (n_t,) float, epoch times, UTC seconds (the simulated clock)
+    antenna_enu_m : (n_t, 3) float, metres, true antenna position in the scene's ENU frame
+    vel_enu_mps : (n_t, 3) float, metres per second, ENU (NaN where unknown: speed 0)
+    pose_valid : (n_t,) bool, False where no recent pose exists (no-fix epochs)
+    state : the receiver state after the previous epoch
+    rng : the random generator (consumed: 2 uniforms per epoch)
+
+    Returns
+    -------
+    fixes : Fixes over the n_t epochs
+    state : the receiver state after the last epoch
+    """
+    prof = rx.profile
+    t = np.atleast_1d(np.asarray(t_unix_s, dtype=float))
+    n_t = t.shape[0]
+    ant = np.where(pose_valid[:, None], antenna_enu_m, 0.0)
+    sky = compute_sky(rx, t, ant)
+    seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
+    used = select_used(seen, sky.el_deg, prof.sky.max_channels)
+    n_used = used.sum(axis=-1)
+    has_fix = pose_valid & (n_used >= 4)
+    hdop, vdop, pdop = dop(sky.los_enu, used)
+
+    # Noise: always draw, so batch and epoch-by-epoch runs consume the generator identically.
+    u = rng.random((n_t, 2))
+    if prof.noise.model == "usarsim":
+        sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
+        z_north, z_east = box_muller(u[:, 0], u[:, 1])
+        north_m, east_m = sigma * z_north, sigma * z_east
+    else:
+        north_m = east_m = np.zeros(n_t)
+    if prof.georef == "flat_earth":
+        lat, lon = geodesy.flat_earth_offset_deg(sky.lat_deg, sky.lon_deg, east_m, north_m)
+    else:
+        lat, lon = geodesy.offset_geodetic_deg(
+            sky.lat_deg, sky.lon_deg, sky.alt_hae_m, east_m, north_m
+        )
+    alt_hae = sky.alt_hae_m  # the paper's model perturbs latitude and longitude only
+    geoid = geodesy.geoid_sep_m(lat, lon)
+
+    vel = np.nan_to_num(np.asarray(vel_enu_mps, dtype=float))
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
+
+    in_view = (np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0) & pose_valid[:, None]
+    cn0 = cn0_from_elevation_dbhz(sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz)
+    cn0 = np.where(seen, cn0, np.nan)
+    nofix = np.where(has_fix, 1.0, np.nan)
+    truth_nan = np.where(pose_valid, 1.0, np.nan)
+    fixes = Fixes(
+        t_unix_s=t,
+        lat_deg=lat * nofix,
+        lon_deg=lon * nofix,
+        alt_msl_m=(alt_hae - geoid) * nofix,
+        geoid_sep_m=geoid,
+        quality=np.where(has_fix, QUALITY_GPS, QUALITY_NONE).astype(np.int8),
+        mode=np.where(has_fix, MODE_3D, MODE_NONE).astype(np.int8),
+        hdop=hdop * nofix,
+        vdop=vdop * nofix,
+        pdop=pdop * nofix,
+        speed_mps=speed * nofix,
+        course_deg=course * nofix,
+        prn=np.asarray(rx.ephemeris.prn),
+        az_deg=sky.az_deg,
+        el_deg=sky.el_deg,
+        cn0_dbhz=cn0,
+        in_view=in_view,
+        used=used & has_fix[:, None],
+        truth_lat_deg=sky.lat_deg * truth_nan,
+        truth_lon_deg=sky.lon_deg * truth_nan,
+        truth_alt_hae_m=sky.alt_hae_m * truth_nan,
+    )
+    new_state = replace(state, n_epochs=state.n_epochs + n_t, last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s)
+    return fixes, new_state
