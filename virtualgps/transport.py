@@ -1,0 +1,1518 @@
+"""Byte transports: where NMEA goes, and where poses come from.
+
+Output devices share one small interface (:class:`OutputDevice`): ``write_epoch`` (never waits
+for the client), ``read_available`` (what the client sent us, e.g. gpsd's ``$PMTK`` probes),
+``close``, ``path`` / ``describe()``, and use as a context manager.
+
+- :class:`PtyDevice` — a pseudo-terminal in raw mode at an explicit baud rate, readable by any
+  user, with a stable symlink to its slave side; output paced to the baud rate like a real serial
+  line, and stale output dropped when nobody reads (see the class docstring for the Linux pty
+  behaviour this relies on).
+- :class:`SerialDevice` — a real serial port (or any pyserial URL, e.g. ``loop://`` in tests).
+- :class:`FileSink` — a file, or stdout for ``-``.
+
+Pose sources (:class:`PoseSource`) are non-blocking: ``poll()`` returns the raw messages that
+arrived since the last call with their arrival time; ``fileno()`` lets the daemon sleep in
+``select`` until the next epoch or the next message. :func:`open_pose_source` builds one from a
+``--poses`` spec (``udp://HOST:PORT``, ``tcp://HOST:PORT``, ``-``).
+
+Only this module, the daemon and the CLI touch ptys, serial ports and sockets. Nothing here
+parses NMEA or pose JSON: bytes in, bytes out.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import fcntl
+import logging
+import os
+import queue
+import select
+import socket
+import struct
+import sys
+import termios
+import threading
+import time
+import uuid
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO, Self
+from urllib.parse import urlsplit
+
+import serial
+
+from virtualgps.exceptions import ConfigError, VirtualGPSError
+
+__all__ = [
+    "MAX_MESSAGE_BYTES",
+    "FileSink",
+    "OutputDevice",
+    "PoseSource",
+    "PtyDevice",
+    "SerialDevice",
+    "StdinPoseSource",
+    "TcpPoseSource",
+    "UdpPoseSource",
+    "open_pose_source",
+]
+
+log = logging.getLogger(__name__)
+
+#: Largest pose message accepted: one UDP datagram (the IPv4 payload limit is 65,507 bytes, so a
+#: 64 KiB receive never truncates), or one TCP/stdin line.
+MAX_MESSAGE_BYTES = 65536
+
+# Largest backlog of client-to-device bytes (PMTK commands) kept for read_available(); a client
+# that floods us loses its oldest bytes rather than growing our memory.
+_RX_MAX_BYTES = 65536
+
+# How often an idle pty writer looks for a reader attaching or leaving. Linux gives no event for
+# "POLLHUP cleared" (poll() reports POLLHUP at once while it holds), so this is polled; 50 ms is
+# far below one epoch at any rate a GPS emits.
+_IDLE_POLL_S = 0.05
+
+# Output pacing: write the line's bytes in slices of about this duration, at absolute wake times.
+_CHUNK_S = 0.01
+_MAX_CHUNK_BYTES = 1024
+
+# Most unread bytes we let sit in the pty's kernel buffers. TIOCINQ on the slave counts only the
+# line discipline's read buffer (N_TTY_BUF_SIZE = 4096; it reports at most 4095), not the tty
+# flip buffers behind it (~16 KiB more). Keeping our unread share below that buffer keeps the
+# count exact, so the backlog and the age of unread output are known, not guessed.
+_KERNEL_CAP_BYTES = 2048
+
+# How long SerialDevice's writer waits for a stuck port (hardware flow control held, USB adapter
+# gone) before dropping the rest of an epoch. Only the writer thread waits, never the caller.
+_SERIAL_WRITE_TIMEOUT_S = 0.5
+
+# Caps per poll() so one flooding sender cannot keep the daemon from emitting its next epoch.
+_MAX_DATAGRAMS_PER_POLL = 10000
+_MAX_READ_BYTES_PER_POLL = 1 << 20
+
+_UDP_RCVBUF_BYTES = 4 << 20  # the kernel caps it at net.core.rmem_max
+_TCP_MAX_CLIENTS = 64
+
+
+# --------------------------------------------------------------------------------------------
+# Output devices
+# --------------------------------------------------------------------------------------------
+
+
+class OutputDevice(abc.ABC):
+    """Where NMEA bytes go: one epoch at a time, without ever making the caller wait.
+
+    Attributes
+    ----------
+    dropped_bytes : int
+        Bytes handed to ``write_epoch`` that never reached the client (dropped from the queue,
+        flushed from the kernel as stale, or refused by a full port).
+    dropped_epochs : int
+        Whole epochs dropped before any of their bytes were sent.
+    """
+
+    dropped_bytes: int = 0
+    dropped_epochs: int = 0
+
+    @property
+    @abc.abstractmethod
+    def path(self) -> str:
+        """Return what a client opens (link, device, file path, or ``-``)."""
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """Return a one-line description of the device for the user."""
+
+    @abc.abstractmethod
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch's bytes for output; return at once.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch (or a reply such as ``$PMTK001``), sent whole and in order.
+        """
+
+    def read_available(self) -> bytes:
+        """Return what the client sent since the last call, without waiting (``b""`` if none).
+
+        Returns
+        -------
+        bytes
+            Raw bytes, possibly ending mid-line; the caller assembles lines.
+        """
+        return b""
+
+    def fileno(self) -> int | None:
+        """Return a descriptor that turns readable when ``read_available`` has data, or None.
+
+        Returns
+        -------
+        int or None
+            For ``select``; None where the device has no input.
+        """
+        return None
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the device; calling it again does nothing."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+@dataclass
+class _Epoch:
+    data: bytes
+    t_enqueued_s: float  # time.monotonic() when write_epoch received it
+    offset: int = 0  # bytes already handed to the kernel
+
+
+class _EpochQueue:
+    """Epochs waiting to be written, bounded by size and age; the oldest whole epochs go first.
+
+    Not thread-safe: the owning device guards it with its lock. An epoch whose first bytes were
+    already sent is never dropped by ``trim`` (finishing it keeps the client's sentences whole);
+    ``drop_started`` drops its remainder when the client is known to have lost the beginning.
+    """
+
+    def __init__(self, max_bytes: int, max_age_s: float) -> None:
+        self.max_bytes = max_bytes
+        self.max_age_s = max_age_s
+        self.epochs: deque[_Epoch] = deque()
+        self.queued_bytes = 0
+        self.dropped_bytes = 0
+        self.dropped_epochs = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.epochs)
+
+    def put(self, data: bytes, now_s: float) -> None:
+        self.epochs.append(_Epoch(data, now_s))
+        self.queued_bytes += len(data)
+
+    def trim(self, now_s: float, kernel_bytes: int) -> None:
+        """Drop the oldest unstarted epochs while the backlog is too large or too old.
+
+        The backlog is ``queued_bytes + kernel_bytes`` (unread in the kernel). The newest epoch
+        is kept unless it is itself older than ``max_age_s``: an epoch larger than the whole
+        budget is still sent rather than never.
+        """
+        while True:
+            first = 1 if self.epochs and self.epochs[0].offset else 0
+            if first >= len(self.epochs):
+                return
+            oldest = self.epochs[first]
+            too_old = now_s - oldest.t_enqueued_s > self.max_age_s
+            too_big = self.queued_bytes + kernel_bytes > self.max_bytes
+            if not too_old and (not too_big or first == len(self.epochs) - 1):
+                return
+            del self.epochs[first]
+            self.queued_bytes -= len(oldest.data)
+            self.dropped_bytes += len(oldest.data)
+            self.dropped_epochs += 1
+
+    def drop_started(self) -> None:
+        """Drop the unsent rest of an epoch whose beginning was already sent."""
+        if self.epochs and self.epochs[0].offset:
+            head = self.epochs.popleft()
+            rest = len(head.data) - head.offset
+            self.queued_bytes -= rest
+            self.dropped_bytes += rest
+
+    def peek(self, max_bytes: int) -> bytes:
+        head = self.epochs[0]
+        return head.data[head.offset : head.offset + max_bytes]
+
+    def advance(self, n_bytes: int) -> None:
+        head = self.epochs[0]
+        head.offset += n_bytes
+        self.queued_bytes -= n_bytes
+        if head.offset >= len(head.data):
+            self.epochs.popleft()
+
+
+def _termios_speed(baud: int) -> int:
+    """Return the termios speed constant for ``baud``, or raise ConfigError naming the choices."""
+    speed = getattr(termios, f"B{baud}", None) if isinstance(baud, int) and baud > 0 else None
+    if speed is None:
+        rates = sorted(int(k[1:]) for k in dir(termios) if k[:1] == "B" and k[1:].isdigit())
+        raise ConfigError(
+            f"baud {baud!r} is not a standard serial rate; use one of "
+            f"{', '.join(str(r) for r in rates if r >= 1200)} (the Holux M-1000 uses 38400)"
+        )
+    return speed
+
+
+def _baud_of_speed(speed: int) -> int | None:
+    for key in dir(termios):
+        if key[:1] == "B" and key[1:].isdigit() and getattr(termios, key) == speed:
+            return int(key[1:])
+    return None
+
+
+def _set_raw(fd: int, speed: int) -> None:
+    """Put the terminal ``fd`` in raw 8N1 mode at ``speed`` (a termios B constant).
+
+    Raw because cooked mode maps the CR of every NMEA ``\\r\\n`` to a newline (ICRNL), so clients
+    read ``\\n\\n``, and echoes what the client writes (ECHO), so gpsd would read back its own
+    PMTK probes as if the receiver had sent them.
+    """
+    iflag, oflag, cflag, lflag, _, _, cc = termios.tcgetattr(fd)
+    iflag &= ~(
+        termios.IGNBRK
+        | termios.BRKINT
+        | termios.PARMRK
+        | termios.ISTRIP
+        | termios.INLCR
+        | termios.IGNCR
+        | termios.ICRNL
+        | termios.IXON
+        | termios.IXOFF
+        | termios.IXANY
+        | termios.INPCK
+    )
+    oflag &= ~termios.OPOST
+    lflag &= ~(termios.ECHO | termios.ECHONL | termios.ICANON | termios.ISIG | termios.IEXTEN)
+    cflag &= ~(termios.CSIZE | termios.PARENB | termios.CSTOPB | termios.CRTSCTS)
+    cflag |= termios.CS8 | termios.CREAD | termios.CLOCAL
+    cc[termios.VMIN] = 1
+    cc[termios.VTIME] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, [iflag, oflag, cflag, lflag, speed, speed, cc])
+
+
+def _unread_bytes(fd: int) -> int:
+    """Return TIOCINQ (bytes waiting to be read) of the terminal or socket ``fd``."""
+    return struct.unpack("i", fcntl.ioctl(fd, termios.TIOCINQ, b"\0\0\0\0"))[0]
+
+
+def _make_link(link_path: Path, target: Path) -> None:
+    """Point the symlink ``link_path`` at ``target``, replacing an old symlink atomically."""
+    if os.path.lexists(link_path) and not link_path.is_symlink():
+        raise VirtualGPSError(
+            f"{link_path} exists and is not a symlink; refusing to replace it. Remove it or "
+            f"choose another path with --link"
+        )
+    # symlink + rename: a client never sees the link missing or half made, even when a previous
+    # run's link (dangling after a crash) is being replaced.
+    tmp = link_path.with_name(f".{link_path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        os.symlink(target, tmp)
+        os.replace(tmp, link_path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise VirtualGPSError(f"cannot create the link {link_path} -> {target}: {exc}") from exc
+
+
+class PtyDevice(OutputDevice):
+    """A pseudo-terminal that looks like the receiver's serial port to gpsd and ROS drivers.
+
+    The slave side is put in raw 8N1 mode with ``baud`` in its termios, made readable and
+    writable by any user (as gpsd's gpsfake does), and reached through a stable symlink. A writer
+    thread sends queued epochs at ``baud / 10`` bytes per second (8N1: 10 bits per byte) in small
+    slices at absolute wake times; ``write_epoch`` only appends to a bounded queue.
+
+    Linux pty behaviour this relies on (verified on Linux 6.x, see tests/test_transport.py):
+
+    - While no process has the slave open, ``poll()`` on the master reports POLLHUP and reading
+      the master fails with EIO (once the client's last bytes are read). This only works if we
+      do not keep a slave descriptor open ourselves, so we close ours after configuring it: the
+      termios settings persist, since the open master keeps the tty alive.
+    - Writes to the master while nobody has the slave open are buffered (about 20 KB: 4095 in the
+      line discipline plus the flip buffers), then a non-blocking write fails with EAGAIN and a
+      blocking one hangs. Those bytes survive until a reader opens the slave, which then reads
+      minutes-old output. So the writer never writes while POLLHUP is set, and flushes the
+      slave's input queue (``tcflush(slave, TCIFLUSH)``; it discards the flip buffers too) when
+      a reader leaves and when one arrives.
+    - ``tcflush`` on the *master* does not discard the slave's unread input, and TIOCOUTQ on the
+      master is always 0 (ptys have no ``chars_in_buffer``): the backlog can only be seen and
+      discarded from a slave descriptor. We open one briefly (``O_NOCTTY``, microseconds) while a
+      reader is attached, read TIOCINQ (unread bytes, at most 4095 and lagging a write by the
+      flip-buffer work queue, well under a millisecond) and close it again.
+    - Termios calls on the master act on the slave, so ``termios_baud()`` sees the speed a client
+      such as gpsd set; the pty passes bytes unchanged whatever the speed.
+    - What the client writes arrives on the master (TIOCINQ on the master counts it) and stays
+      readable after the client closes.
+
+    Stale output: the backlog (queued bytes + unread bytes in the kernel) is held to
+    ``max_backlog_s`` of line time by dropping the oldest whole epochs; queued epochs older than
+    ``max_backlog_s`` are dropped too; unread kernel output older than ``max_backlog_s`` (a
+    client that holds the port open but stopped reading) is flushed, together with the rest of
+    the epoch it belonged to, so the client resumes with fresh epochs.
+
+    Parameters
+    ----------
+    link_path : Path or None
+        Stable symlink to create to the slave (e.g. ``./virtualgps0``); None for none.
+    baud : int
+        Line rate in bits per second, a standard termios rate (default 38400, the Holux M-1000).
+    max_backlog_s : float
+        Most output, in seconds of line time, that may wait for a client.
+
+    Attributes
+    ----------
+    slave_path : Path
+        The slave device, e.g. ``/dev/pts/3``.
+    link_path : Path or None
+    baud : int
+    reader_attached : bool
+        Whether a process had the slave open at the writer's last look.
+    written_bytes : int
+        Bytes handed to the kernel.
+    kernel_flushes : int
+        Times unread output was discarded from the kernel.
+    rx_dropped_bytes : int
+        Client bytes discarded because read_available was not called for too long.
+    alive : bool
+        The writer thread runs while this is True.
+
+    Raises
+    ------
+    ConfigError
+        For a non-standard baud rate or a non-positive ``max_backlog_s``.
+    VirtualGPSError
+        If ``link_path`` exists and is not a symlink, or the pty cannot be made.
+    """
+
+    def __init__(self, link_path: Path | None, baud: int = 38400, max_backlog_s: float = 2.0):
+        speed = _termios_speed(baud)
+        if not max_backlog_s > 0:
+            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
+        self.baud = baud
+        self.max_backlog_s = float(max_backlog_s)
+        self._bytes_per_s = baud / 10.0  # 8N1: start + 8 data + stop bits per byte
+        self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
+        self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * _CHUNK_S)))
+        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
+        self._lock = threading.Lock()
+        # Both the writer thread and read_available() drain the master; one at a time, so the
+        # client's bytes keep their order.
+        self._rx_lock = threading.Lock()
+        self._rx = bytearray()
+        self._closed = False
+        self.link_path = Path(link_path) if link_path is not None else None
+        self.reader_attached = False
+        self.written_bytes = 0
+        self.kernel_flushes = 0
+        self.rx_dropped_bytes = 0
+        self._kernel_dropped_bytes = 0
+        self._kernel_unread = 0
+        # Bytes written since the last flush, with when: (t_monotonic_s, cumulative end offset).
+        # With TIOCINQ this tells the age of the oldest byte the client has not read yet.
+        self._sent_total = 0
+        self._sent_log: deque[tuple[float, int]] = deque()
+        self._peer_error_logged = False
+
+        master_fd, slave_fd = os.openpty()
+        try:
+            self.slave_path = Path(os.ttyname(slave_fd))
+            _set_raw(slave_fd, speed)
+        except BaseException:
+            os.close(master_fd)
+            raise
+        finally:
+            # Not kept open: our own slave descriptor would hide POLLHUP (see class docstring).
+            os.close(slave_fd)
+        try:
+            # Any user may open it (gpsd often runs as user gpsd, ROS as another user).
+            os.chmod(self.slave_path, 0o666)
+        except OSError as exc:
+            log.info("cannot make %s readable by all users: %s", self.slave_path, exc)
+        os.set_blocking(master_fd, False)
+        self._master = master_fd
+        try:
+            if self.link_path is not None:
+                _make_link(self.link_path, self.slave_path)
+            self._wake = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        except BaseException:
+            os.close(master_fd)
+            raise
+        # Turns readable when client bytes wait in _rx (for the daemon's select).
+        self._rx_event = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self.alive = True
+        self._thread = threading.Thread(
+            target=self._run, name=f"virtualgps-pty-{self.slave_path.name}", daemon=True
+        )
+        self._thread.start()
+
+    # -- interface ------------------------------------------------------------------------
+
+    @property
+    def path(self) -> str:
+        """Return what clients open: the link if there is one, else the slave device."""
+        return str(self.link_path if self.link_path is not None else self.slave_path)
+
+    def describe(self) -> str:
+        """Return ``/dev/pts/N -> LINK`` (or just the slave path without a link)."""
+        if self.link_path is None:
+            return str(self.slave_path)
+        return f"{self.slave_path} -> {self.link_path}"
+
+    @property
+    def dropped_bytes(self) -> int:  # type: ignore[override]
+        """Return bytes that never reached a client (queue drops and kernel flushes)."""
+        return self._queue.dropped_bytes + self._kernel_dropped_bytes
+
+    @property
+    def dropped_epochs(self) -> int:  # type: ignore[override]
+        """Return whole epochs dropped before any byte of them was sent."""
+        return self._queue.dropped_epochs
+
+    @property
+    def queued_bytes(self) -> int:
+        """Return bytes waiting in our queue (not yet handed to the kernel)."""
+        return self._queue.queued_bytes
+
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch's bytes, sent whole and in order, paced to the baud rate.
+
+        Raises
+        ------
+        VirtualGPSError
+            If the device was closed.
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        if not data:
+            return
+        with self._lock:
+            now_s = time.monotonic()
+            self._queue.put(bytes(data), now_s)
+            self._queue.trim(now_s, self._kernel_unread)
+        self._signal(self._wake)
+
+    def read_available(self) -> bytes:
+        """Return the bytes the client wrote to the slave since the last call (``b""`` if none).
+
+        Returns
+        -------
+        bytes
+            At most the newest 64 KiB; older bytes are counted in ``rx_dropped_bytes``.
+        """
+        if self._closed:
+            return b""
+        self._read_client()  # also here, so a caller never waits for the writer's next look
+        with self._lock:
+            data = bytes(self._rx)
+            self._rx.clear()
+            with contextlib.suppress(BlockingIOError):
+                os.eventfd_read(self._rx_event)
+        return data
+
+    def fileno(self) -> int | None:
+        """Return an event descriptor readable while client bytes wait for read_available."""
+        return None if self._closed else self._rx_event
+
+    def termios_baud(self) -> int | None:
+        """Return the speed currently set on the slave (a client may change it), in baud.
+
+        Returns
+        -------
+        int or None
+            None if the speed is not a standard rate or the device is closed.
+        """
+        if self._closed:
+            return None
+        return _baud_of_speed(termios.tcgetattr(self._master)[5])
+
+    def close(self) -> None:
+        """Stop the writer, close the pty (clients then read EOF/EIO) and remove the link."""
+        if self._closed:
+            return
+        self._closed = True
+        self.alive = False
+        self._signal(self._wake)
+        self._thread.join(timeout=5.0)
+        for fd in (self._master, self._wake, self._rx_event):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if self.link_path is not None:
+            try:
+                # Only our own link: another run may have taken the name over meanwhile.
+                if os.readlink(self.link_path) == str(self.slave_path):
+                    os.unlink(self.link_path)
+            except OSError:
+                pass
+
+    # -- writer thread --------------------------------------------------------------------
+
+    @staticmethod
+    def _signal(event_fd: int) -> None:
+        with contextlib.suppress(OSError):
+            os.eventfd_write(event_fd, 1)
+
+    def _reader_absent(self) -> bool:
+        """Return True while no process has the slave open (POLLHUP on the master)."""
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        return any(ev & select.POLLHUP for _, ev in poller.poll(0))
+
+    def _read_client(self) -> None:
+        """Move what the client wrote from the master into the bounded ``_rx`` buffer."""
+        with self._rx_lock:
+            self._read_client_locked()
+
+    def _read_client_locked(self) -> None:
+        got = []
+        total = 0
+        while total < _MAX_READ_BYTES_PER_POLL:
+            try:
+                chunk = os.read(self._master, 4096)
+            except BlockingIOError:
+                break
+            except OSError:
+                break  # EIO: no client and nothing left to read (or closed meanwhile)
+            if not chunk:
+                break
+            got.append(chunk)
+            total += len(chunk)
+        if not got:
+            return
+        with self._lock:
+            for chunk in got:
+                self._rx += chunk
+            excess = len(self._rx) - _RX_MAX_BYTES
+            if excess > 0:
+                del self._rx[:excess]
+                self.rx_dropped_bytes += excess
+        self._signal(self._rx_event)
+
+    def _open_slave(self) -> int | None:
+        """Open the slave briefly for TIOCINQ/tcflush; None if we may not (e.g. TIOCEXCL)."""
+        try:
+            # O_NOCTTY: never become our controlling terminal; O_NONBLOCK: never wait for it.
+            return os.open(self.slave_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as exc:
+            if not self._peer_error_logged:
+                self._peer_error_logged = True
+                log.warning(
+                    "cannot open %s to watch for stale output (%s); a client that stops "
+                    "reading may later read old epochs",
+                    self.slave_path,
+                    exc,
+                )
+            return None
+
+    def _measure_unread(self) -> int | None:
+        fd = self._open_slave()
+        if fd is None:
+            return None
+        try:
+            return _unread_bytes(fd)
+        except OSError:
+            return None
+        finally:
+            os.close(fd)
+
+    def _flush_kernel(self) -> None:
+        """Discard output the client has not read, counting it as dropped."""
+        fd = self._open_slave()
+        if fd is not None:
+            try:
+                stale = _unread_bytes(fd)
+                termios.tcflush(fd, termios.TCIFLUSH)
+                if stale:
+                    self._kernel_dropped_bytes += stale
+                    self.kernel_flushes += 1
+            except OSError as exc:
+                log.debug("flushing %s failed: %s", self.slave_path, exc)
+            finally:
+                os.close(fd)
+        self._sent_log.clear()
+        self._sent_total = 0
+        self._kernel_unread = 0
+
+    def _unread_age_s(self, now_s: float, unread: int) -> float:
+        """Return how long ago the oldest unread byte was written (0 if all was read)."""
+        first_unread = self._sent_total - unread
+        while self._sent_log and self._sent_log[0][1] <= first_unread:
+            self._sent_log.popleft()
+        if unread <= 0 or not self._sent_log:
+            return 0.0
+        return now_s - self._sent_log[0][0]
+
+    def _on_attach(self) -> None:
+        self.reader_attached = True
+        log.info("a client opened %s", self.slave_path)
+        self._flush_kernel()  # anything left from before this client is stale to it
+
+    def _on_detach(self) -> None:
+        self.reader_attached = False
+        log.info(
+            "no client has %s open; holding at most %.1f s of output",
+            self.slave_path,
+            self.max_backlog_s,
+        )
+        self._flush_kernel()
+        with self._lock:
+            self._queue.drop_started()  # the next client must not start mid-epoch
+
+    def _service(self, now_s: float, next_send_s: float) -> tuple[float, float]:
+        """Write the next slice if it is due; return (seconds to sleep, next send time)."""
+        unread = self._measure_unread()
+        if unread is not None:
+            if (
+                unread > self.max_backlog_bytes
+                or self._unread_age_s(now_s, unread) > self.max_backlog_s
+            ):
+                # The client holds the port open but stopped reading: what it would read next
+                # is stale. Discard it and the rest of its epoch; fresh epochs follow.
+                self._flush_kernel()
+                unread = 0
+                with self._lock:
+                    self._queue.drop_started()
+        in_kernel = unread if unread is not None else 0
+        with self._lock:
+            self._kernel_unread = in_kernel
+            self._queue.trim(now_s, in_kernel)
+            if not self._queue:
+                return _IDLE_POLL_S, next_send_s
+            if next_send_s < now_s - _CHUNK_S:
+                next_send_s = now_s  # idle or badly late: restart the line clock, no burst
+            if next_send_s > now_s:
+                return next_send_s - now_s, next_send_s
+            room = _KERNEL_CAP_BYTES - in_kernel
+            if room <= 0:
+                return _CHUNK_S, next_send_s  # the client is not reading; look again soon
+            chunk = self._queue.peek(min(self._chunk_bytes, room))
+            try:
+                n_sent = os.write(self._master, chunk)
+            except BlockingIOError:
+                n_sent = 0
+            except OSError as exc:
+                log.debug("write to %s failed: %s", self.slave_path, exc)
+                n_sent = 0
+            if n_sent <= 0:
+                return _CHUNK_S, next_send_s
+            self._queue.advance(n_sent)
+            self.written_bytes += n_sent
+            self._kernel_unread = in_kernel + n_sent
+        self._sent_total += n_sent
+        self._sent_log.append((now_s, self._sent_total))
+        # Absolute schedule: the next slice is due when this one has left the "line".
+        next_send_s += n_sent / self._bytes_per_s
+        return max(0.0, next_send_s - time.monotonic()), next_send_s
+
+    def _run(self) -> None:
+        poller = select.poll()
+        poller.register(self._wake, select.POLLIN)
+        watching_master = False
+        next_send_s = time.monotonic()
+        try:
+            while self.alive:
+                now_s = time.monotonic()
+                self._read_client()
+                if self._reader_absent():
+                    if self.reader_attached:
+                        self._on_detach()
+                    with self._lock:
+                        self._queue.trim(now_s, 0)
+                        self._kernel_unread = 0
+                    timeout_s = _IDLE_POLL_S
+                    want_master = False  # POLLHUP would wake poll() at once: do not watch
+                else:
+                    if not self.reader_attached:
+                        self._on_attach()
+                        next_send_s = now_s
+                    timeout_s, next_send_s = self._service(now_s, next_send_s)
+                    want_master = True  # wake for client bytes (gpsd's probes) and hang-ups
+                if want_master != watching_master:
+                    if want_master:
+                        poller.register(self._master, select.POLLIN)
+                    else:
+                        poller.unregister(self._master)
+                    watching_master = want_master
+                for fd, _ in poller.poll(timeout_s * 1000.0):
+                    if fd == self._wake:
+                        with contextlib.suppress(BlockingIOError):
+                            os.eventfd_read(self._wake)
+        except Exception:
+            log.exception("the writer of %s stopped", self.slave_path)
+
+
+class SerialDevice(OutputDevice):
+    """A real serial port (or any pyserial URL such as ``loop://``) driven 8N1 at ``baud``.
+
+    A writer thread sends queued epochs; ``write_epoch`` only appends to a queue bounded like
+    :class:`PtyDevice`'s (``max_backlog_s`` of line time, counting the port's own output queue
+    where pyserial reports it). The UART paces the bytes itself. Writes that stall longer than
+    0.5 s (hardware flow control held, adapter unplugged) are dropped and counted; when the
+    port's output queue holds more than the backlog, it is discarded as stale.
+
+    pyserial's own non-blocking mode (``write_timeout=0``) is not used: on POSIX ports it spins
+    while the kernel buffer is full, and ``loop://`` raises SerialTimeoutException for every
+    write. Only the writer thread ever waits.
+
+    Parameters
+    ----------
+    port : str
+        Device (``/dev/ttyUSB0``) or pyserial URL (``loop://``, ``socket://host:port``).
+    baud : int
+        Line rate in bits per second.
+    max_backlog_s : float
+        Most output, in seconds of line time, that may wait to be sent.
+
+    Raises
+    ------
+    VirtualGPSError
+        If the port cannot be opened.
+    """
+
+    def __init__(self, port: str, baud: int, max_backlog_s: float = 2.0) -> None:
+        if not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        if not max_backlog_s > 0:
+            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
+        self.port = port
+        self.baud = baud
+        self.max_backlog_s = float(max_backlog_s)
+        bytes_per_s = baud / 10.0
+        self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
+        # Slices of ~0.1 s keep each write well inside the write timeout (loop:// refuses a
+        # write whose line time exceeds it).
+        self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
+        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
+        self._lock = threading.Lock()
+        self._has_data = threading.Condition(self._lock)
+        self._closed = False
+        self._port_dropped_bytes = 0
+        self.written_bytes = 0
+        self._error_logged = False
+        try:
+            self._serial = serial.serial_for_url(
+                port,
+                baudrate=baud,
+                bytesize=serial.EIGHTBITS,
+                parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE,
+                timeout=0,  # reads return at once
+                write_timeout=_SERIAL_WRITE_TIMEOUT_S,
+                xonxoff=False,
+                rtscts=False,
+                dsrdtr=False,
+            )
+        except (serial.SerialException, ValueError, OSError) as exc:
+            raise VirtualGPSError(
+                f"cannot open serial port {port} at {baud} baud: {exc}. Check the device name "
+                f"and that you may use it (on Linux, membership of the dialout group)"
+            ) from exc
+        self.alive = True
+        self._thread = threading.Thread(
+            target=self._run, name=f"virtualgps-serial-{port}", daemon=True
+        )
+        self._thread.start()
+
+    @property
+    def path(self) -> str:
+        """Return the port name or URL."""
+        return self.port
+
+    def describe(self) -> str:
+        """Return ``PORT at BAUD baud``."""
+        return f"{self.port} at {self.baud} baud"
+
+    @property
+    def dropped_bytes(self) -> int:  # type: ignore[override]
+        """Return bytes that never reached the port (queue drops, stalls, flushed output)."""
+        return self._queue.dropped_bytes + self._port_dropped_bytes
+
+    @property
+    def dropped_epochs(self) -> int:  # type: ignore[override]
+        """Return whole epochs dropped before any byte of them was sent."""
+        return self._queue.dropped_epochs
+
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch's bytes.
+
+        Raises
+        ------
+        VirtualGPSError
+            If the device was closed.
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        if not data:
+            return
+        with self._has_data:
+            now_s = time.monotonic()
+            self._queue.put(bytes(data), now_s)
+            self._queue.trim(now_s, 0)
+            self._has_data.notify()
+
+    def read_available(self) -> bytes:
+        """Return what arrived on the port since the last call, without waiting.
+
+        Returns
+        -------
+        bytes
+            At most the newest 64 KiB of it.
+        """
+        if self._closed:
+            return b""
+        try:
+            data = self._serial.read(max(self._serial.in_waiting, 0))
+            while len(data) < _MAX_READ_BYTES_PER_POLL and self._serial.in_waiting:
+                data += self._serial.read(self._serial.in_waiting)
+        except (serial.SerialException, OSError) as exc:
+            self._log_error("read", exc)
+            return b""
+        return bytes(data[-_RX_MAX_BYTES:])
+
+    def fileno(self) -> int | None:
+        """Return the port's descriptor (readable on input) where it has one, else None."""
+        if self._closed:
+            return None
+        try:
+            return self._serial.fileno()
+        except (AttributeError, NotImplementedError, serial.SerialException):
+            return None
+
+    def close(self) -> None:
+        """Stop the writer and close the port."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._has_data:
+            self.alive = False
+            self._has_data.notify()
+        with contextlib.suppress(AttributeError, serial.SerialException):
+            self._serial.cancel_write()  # wake a writer stalled on a held port
+        self._thread.join(timeout=5.0)
+        with contextlib.suppress(serial.SerialException, OSError):
+            self._serial.close()
+
+    def _log_error(self, what: str, exc: BaseException) -> None:
+        if not self._error_logged:
+            self._error_logged = True
+            log.warning("%s on %s failed: %s (further failures not logged)", what, self.port, exc)
+
+    def _port_backlog(self) -> int:
+        try:
+            return int(self._serial.out_waiting)
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return 0
+
+    def _run(self) -> None:
+        try:
+            while True:
+                with self._has_data:
+                    while self.alive and not self._queue:
+                        self._has_data.wait()
+                    if not self.alive:
+                        return
+                waiting = self._port_backlog()
+                if waiting > self.max_backlog_bytes:
+                    # Output the line could not send in max_backlog_s: stale, discard it.
+                    with contextlib.suppress(serial.SerialException, OSError):
+                        self._serial.reset_output_buffer()
+                        self._port_dropped_bytes += waiting
+                        waiting = 0
+                with self._lock:
+                    self._queue.trim(time.monotonic(), waiting)
+                    if not self._queue:
+                        continue
+                    chunk = self._queue.peek(self._chunk_bytes)
+                try:
+                    n_sent = self._serial.write(chunk) or 0
+                except (serial.SerialTimeoutException, queue.Full) as exc:
+                    # queue.Full: loop:// when its 4 KiB buffer stays full for the timeout.
+                    self._log_error("write", exc)
+                    with self._lock:
+                        self._queue.drop_started()
+                        if self._queue and not self._queue.epochs[0].offset:
+                            # The port is stuck: drop the epoch whole (pyserial does not say
+                            # how much of the slice went out before the timeout).
+                            head = self._queue.epochs.popleft()
+                            self._queue.queued_bytes -= len(head.data)
+                            self._queue.dropped_bytes += len(head.data)
+                            self._queue.dropped_epochs += 1
+                    continue
+                except (serial.SerialException, OSError) as exc:
+                    self._log_error("write", exc)
+                    time.sleep(_IDLE_POLL_S)  # a vanished port: do not spin
+                    continue
+                with self._lock:
+                    if n_sent:
+                        self._queue.advance(n_sent)
+                        self.written_bytes += n_sent
+        except Exception:
+            log.exception("the writer of %s stopped", self.port)
+
+
+class FileSink(OutputDevice):
+    """NMEA to a file, or to stdout for ``-`` (binary, unchanged).
+
+    For ``replay``: writes are synchronous, so a slow pipe makes the caller wait (back-pressure,
+    no bytes lost, output byte-identical); this is the one device whose ``write_epoch`` may
+    wait. Use a pty or serial device for live output.
+
+    Parameters
+    ----------
+    path : Path or str
+        File to create (truncated), or ``-`` for stdout.
+    flush_each_epoch : bool
+        Flush after every epoch (for ``tail -f`` or a live pipe); off for throughput.
+
+    Raises
+    ------
+    VirtualGPSError
+        If the file cannot be created.
+    """
+
+    def __init__(self, path: Path | str, flush_each_epoch: bool = False) -> None:
+        self._name = str(path)
+        self.flush_each_epoch = flush_each_epoch
+        self.written_bytes = 0
+        self._closed = False
+        self._stream: BinaryIO
+        if self._name == "-":
+            self._stream = sys.stdout.buffer
+            self._owned = False
+        else:
+            try:
+                self._stream = open(path, "wb")  # noqa: SIM115 - closed in close()
+            except OSError as exc:
+                raise VirtualGPSError(f"cannot write {path}: {exc}") from exc
+            self._owned = True
+
+    @property
+    def path(self) -> str:
+        """Return the file path, or ``-`` for stdout."""
+        return self._name
+
+    def describe(self) -> str:
+        """Return the file path, or ``stdout``."""
+        return "stdout" if self._name == "-" else self._name
+
+    def write_epoch(self, data: bytes) -> None:
+        """Write one epoch's bytes.
+
+        Parameters
+        ----------
+        data : bytes
+
+        Raises
+        ------
+        VirtualGPSError
+            If the sink was closed or the write failed (disk full, closed pipe).
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        try:
+            self._stream.write(data)
+            if self.flush_each_epoch:
+                self._stream.flush()
+        except OSError as exc:
+            raise VirtualGPSError(f"cannot write {self.describe()}: {exc}") from exc
+        self.written_bytes += len(data)
+
+    def close(self) -> None:
+        """Flush, and close the file (stdout is flushed, not closed)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            log.warning("flushing %s failed: %s", self.describe(), exc)
+        finally:
+            if self._owned:
+                self._stream.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Pose sources
+# --------------------------------------------------------------------------------------------
+
+
+class PoseSource(abc.ABC):
+    """Raw pose messages from the network or stdin, read without waiting.
+
+    Attributes
+    ----------
+    received_messages : int
+        Messages returned by ``poll`` so far.
+    dropped_messages : int
+        Messages discarded for exceeding MAX_MESSAGE_BYTES (lines, or TCP clients cut off).
+    """
+
+    received_messages: int = 0
+    dropped_messages: int = 0
+
+    @abc.abstractmethod
+    def poll(self) -> list[tuple[bytes, float]]:
+        """Return the messages that arrived since the last call, oldest first; never wait.
+
+        Returns
+        -------
+        list of (bytes, float)
+            Each raw message (a datagram, or a line without its line ending) and its arrival
+            time ``t_unix_s`` (``time.time()``).
+        """
+
+    @abc.abstractmethod
+    def fileno(self) -> int:
+        """Return a descriptor that turns readable when ``poll`` may have messages."""
+
+    def fileno_list(self) -> list[int]:
+        """Return the descriptors worth selecting on now (empty once the source has ended).
+
+        Returns
+        -------
+        list of int
+        """
+        return [self.fileno()]
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """Return the source as a spec, e.g. ``udp://127.0.0.1:5600``."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release sockets; calling it again does nothing."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class _LineSplitter:
+    """Split a byte stream into lines, refusing lines longer than MAX_MESSAGE_BYTES."""
+
+    def __init__(self) -> None:
+        self.buffer = bytearray()
+        self.skipping = False  # inside an over-long line: discard up to its newline
+
+    def feed(self, data: bytes) -> tuple[list[bytes], int]:
+        """Return the complete lines in ``data`` and how many over-long lines were cut."""
+        self.buffer += data
+        lines: list[bytes] = []
+        n_long = 0
+        start = 0
+        while True:
+            end = self.buffer.find(b"\n", start)
+            if end < 0:
+                break
+            line = bytes(self.buffer[start:end])
+            start = end + 1
+            if self.skipping:
+                self.skipping = False
+                continue
+            if len(line) > MAX_MESSAGE_BYTES:
+                n_long += 1
+                continue
+            line = line.rstrip(b"\r")
+            if line.strip():
+                lines.append(line)
+        del self.buffer[:start]
+        if len(self.buffer) > MAX_MESSAGE_BYTES:
+            # No newline within 64 KiB: never buffer an unbounded line.
+            if not self.skipping:
+                n_long += 1
+            self.skipping = True
+            self.buffer.clear()
+        return lines, n_long
+
+    def finish(self) -> bytes | None:
+        """Return the last line if the stream ended without a newline."""
+        rest = None if self.skipping else bytes(self.buffer).rstrip(b"\r")
+        self.buffer.clear()
+        self.skipping = False
+        return rest if rest and rest.strip() else None
+
+
+def _resolve(host: str, port: int, kind: socket.SocketKind) -> tuple:
+    try:
+        infos = socket.getaddrinfo(host or None, port, type=kind, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        raise VirtualGPSError(f"cannot resolve host {host!r}: {exc}") from exc
+    return infos[0]
+
+
+def _spec(scheme: str, address: tuple) -> str:
+    host, port = address[0], address[1]
+    return f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
+
+
+class UdpPoseSource(PoseSource):
+    """One pose message per UDP datagram.
+
+    Parameters
+    ----------
+    host : str
+        Address to bind (``127.0.0.1``, ``0.0.0.0``, ``::``); empty for all interfaces.
+    port : int
+        UDP port; 0 picks a free one (see ``address``).
+
+    Attributes
+    ----------
+    address : tuple
+        The bound (host, port, ...) address.
+
+    Raises
+    ------
+    VirtualGPSError
+        If the address cannot be bound (in use, not local).
+    """
+
+    def __init__(self, host: str, port: int) -> None:
+        family, kind, proto, _, addr = _resolve(host, port, socket.SOCK_DGRAM)
+        self._sock = socket.socket(family, kind, proto)
+        try:
+            # A large buffer rides out bursts while the daemon computes an epoch.
+            with contextlib.suppress(OSError):
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
+            self._sock.bind(addr)
+            self._sock.setblocking(False)
+        except OSError as exc:
+            self._sock.close()
+            raise VirtualGPSError(
+                f"cannot listen on udp://{host}:{port}: {exc.strerror or exc}; choose another "
+                f"address with --poses udp://HOST:PORT"
+            ) from exc
+        self.address = self._sock.getsockname()
+        self.received_messages = 0
+        self.dropped_messages = 0
+
+    def describe(self) -> str:
+        """Return ``udp://HOST:PORT`` as bound."""
+        return _spec("udp", self.address)
+
+    def fileno(self) -> int:
+        """Return the socket's descriptor."""
+        return self._sock.fileno()
+
+    def poll(self) -> list[tuple[bytes, float]]:
+        """Return every datagram waiting (up to 10,000 per call), each with its arrival time.
+
+        Returns
+        -------
+        list of (bytes, float)
+        """
+        messages: list[tuple[bytes, float]] = []
+        if self._sock.fileno() < 0:
+            return messages
+        while len(messages) < _MAX_DATAGRAMS_PER_POLL:
+            try:
+                data = self._sock.recv(MAX_MESSAGE_BYTES)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:
+                log.debug("udp receive failed: %s", exc)  # e.g. ICMP errors; keep listening
+                continue
+            if data:
+                messages.append((data, time.time()))
+        self.received_messages += len(messages)
+        return messages
+
+    def close(self) -> None:
+        """Close the socket."""
+        self._sock.close()
+
+
+class TcpPoseSource(PoseSource):
+    """Newline-delimited pose messages from any number of TCP clients.
+
+    A client that sends more than 64 KiB without a newline is disconnected and counted in
+    ``dropped_clients`` (and its line in ``dropped_messages``) instead of being buffered. A last
+    line without newline is delivered when its client disconnects. ``fileno()`` is an epoll
+    descriptor over the listener and all clients, so one ``select`` covers them all.
+
+    Parameters
+    ----------
+    host : str
+        Address to listen on; empty for all interfaces.
+    port : int
+        TCP port; 0 picks a free one (see ``address``).
+
+    Attributes
+    ----------
+    address : tuple
+        The bound (host, port, ...) address.
+    clients : int
+        Connected clients.
+    dropped_clients : int
+
+    Raises
+    ------
+    VirtualGPSError
+        If the address cannot be bound.
+    """
+
+    def __init__(self, host: str, port: int) -> None:
+        family, kind, proto, _, addr = _resolve(host, port, socket.SOCK_STREAM)
+        self._listener = socket.socket(family, kind, proto)
+        try:
+            # A restart must not wait for the previous run's connections in TIME_WAIT.
+            self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._listener.bind(addr)
+            self._listener.listen(16)
+            self._listener.setblocking(False)
+        except OSError as exc:
+            self._listener.close()
+            raise VirtualGPSError(
+                f"cannot listen on tcp://{host}:{port}: {exc.strerror or exc}; choose another "
+                f"address with --poses tcp://HOST:PORT"
+            ) from exc
+        self.address = self._listener.getsockname()
+        self._epoll = select.epoll()
+        self._epoll.register(self._listener.fileno(), select.EPOLLIN)
+        self._clients: dict[int, tuple[socket.socket, _LineSplitter]] = {}
+        self._closed = False
+        self.received_messages = 0
+        self.dropped_messages = 0
+        self.dropped_clients = 0
+
+    @property
+    def clients(self) -> int:
+        """Return the number of connected clients."""
+        return len(self._clients)
+
+    def describe(self) -> str:
+        """Return ``tcp://HOST:PORT`` as bound."""
+        return _spec("tcp", self.address)
+
+    def fileno(self) -> int:
+        """Return the epoll descriptor (readable when a client connects or sends)."""
+        return self._epoll.fileno()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                conn, peer = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                log.debug("accept failed: %s", exc)
+                return
+            if len(self._clients) >= _TCP_MAX_CLIENTS:
+                log.warning("refusing pose client %s: %d already connected", peer, _TCP_MAX_CLIENTS)
+                conn.close()
+                continue
+            conn.setblocking(False)
+            self._clients[conn.fileno()] = (conn, _LineSplitter())
+            self._epoll.register(conn.fileno(), select.EPOLLIN)
+            log.info("pose client %s connected", peer)
+
+    def _drop(self, fd: int) -> None:
+        conn, _ = self._clients.pop(fd)
+        with contextlib.suppress(OSError):
+            self._epoll.unregister(fd)
+        conn.close()
+
+    def poll(self) -> list[tuple[bytes, float]]:
+        """Accept new clients and return the complete lines every client sent.
+
+        Returns
+        -------
+        list of (bytes, float)
+            Lines without their ``\\n`` or ``\\r\\n``; empty lines are skipped.
+        """
+        messages: list[tuple[bytes, float]] = []
+        if self._closed:
+            return messages
+        for fd, _ in self._epoll.poll(0):
+            if fd == self._listener.fileno():
+                self._accept()
+                continue
+            if fd not in self._clients:
+                continue
+            conn, splitter = self._clients[fd]
+            total = 0
+            while total < _MAX_READ_BYTES_PER_POLL:
+                try:
+                    data = conn.recv(MAX_MESSAGE_BYTES)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    data = b""  # reset by peer: treat as a disconnect
+                t_unix_s = time.time()
+                if not data:
+                    last = splitter.finish()
+                    if last is not None:
+                        messages.append((last, t_unix_s))
+                    self._drop(fd)
+                    break
+                total += len(data)
+                lines, n_long = splitter.feed(data)
+                messages.extend((line, t_unix_s) for line in lines)
+                if n_long:
+                    self.dropped_messages += n_long
+                    self.dropped_clients += 1
+                    log.warning(
+                        "dropping a pose client that sent %d bytes without a newline",
+                        MAX_MESSAGE_BYTES,
+                    )
+                    self._drop(fd)
+                    break
+        self.received_messages += len(messages)
+        return messages
+
+    def close(self) -> None:
+        """Disconnect every client and stop listening."""
+        if self._closed:
+            return
+        self._closed = True
+        for fd in list(self._clients):
+            self._drop(fd)
+        self._epoll.close()
+        self._listener.close()
+
+
+class StdinPoseSource(PoseSource):
+    """Newline-delimited pose messages from stdin (or another readable descriptor).
+
+    Reads only when ``select`` says the descriptor is readable, so it never waits, without
+    setting O_NONBLOCK (which would change stdin for every process sharing it, e.g. the shell).
+    At end of input ``eof`` turns True; the descriptor then stays readable, so the daemon must
+    stop selecting on it.
+
+    Parameters
+    ----------
+    fd : int or None
+        Descriptor to read; None for stdin (descriptor 0). Not closed by ``close()``.
+
+    Attributes
+    ----------
+    eof : bool
+    """
+
+    def __init__(self, fd: int | None = None) -> None:
+        # fd 0 itself, not sys.stdin.fileno(): sys.stdin may be replaced (e.g. under pytest).
+        self._fd = 0 if fd is None else fd
+        self._splitter = _LineSplitter()
+        self.eof = False
+        self.received_messages = 0
+        self.dropped_messages = 0
+
+    def describe(self) -> str:
+        """Return ``-``."""
+        return "-"
+
+    def fileno(self) -> int:
+        """Return the descriptor read."""
+        return self._fd
+
+    def fileno_list(self) -> list[int]:
+        """Return ``[fileno()]``, or ``[]`` after end of input (it would stay readable)."""
+        return [] if self.eof else [self._fd]
+
+    def poll(self) -> list[tuple[bytes, float]]:
+        """Return the complete lines available now; at end of input also an unterminated one.
+
+        Returns
+        -------
+        list of (bytes, float)
+        """
+        messages: list[tuple[bytes, float]] = []
+        total = 0
+        while not self.eof and total < _MAX_READ_BYTES_PER_POLL:
+            readable, _, _ = select.select([self._fd], [], [], 0)
+            if not readable:
+                break
+            try:
+                data = os.read(self._fd, MAX_MESSAGE_BYTES)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:
+                log.warning("reading poses from stdin failed: %s", exc)
+                data = b""
+            t_unix_s = time.time()
+            if not data:
+                self.eof = True
+                last = self._splitter.finish()
+                if last is not None:
+                    messages.append((last, t_unix_s))
+                break
+            total += len(data)
+            lines, n_long = self._splitter.feed(data)
+            self.dropped_messages += n_long
+            messages.extend((line, t_unix_s) for line in lines)
+        self.received_messages += len(messages)
+        return messages
+
+    def close(self) -> None:
+        """Stop reading (the descriptor is left open: it is not ours)."""
+        self.eof = True
+
+
+def open_pose_source(spec: str) -> PoseSource | None:
+    """Open the network or stdin pose source named by a ``--poses`` spec.
+
+    Parameters
+    ----------
+    spec : str
+        ``udp://HOST:PORT``, ``tcp://HOST:PORT`` (IPv6 hosts in brackets, ``udp://[::1]:5600``;
+        an empty host listens on all interfaces), or ``-`` for stdin.
+
+    Returns
+    -------
+    PoseSource or None
+        None for anything without a ``scheme:`` prefix (a pose log path, or ``demo``): those
+        are the daemon's to handle.
+
+    Raises
+    ------
+    ConfigError
+        For a ``udp:``/``tcp:`` spec without a valid port, or another URL scheme.
+    VirtualGPSError
+        If the address cannot be bound.
+    """
+    text = spec.strip()
+    if text == "-":
+        return StdinPoseSource()
+    scheme, sep, _ = text.partition(":")
+    is_url = sep and scheme.isalpha() and len(scheme) > 1 and "/" not in scheme
+    if not is_url:
+        return None
+    scheme = scheme.lower()
+    hint = "expected udp://HOST:PORT, tcp://HOST:PORT, -, a pose log file or demo"
+    if scheme not in ("udp", "tcp"):
+        raise ConfigError(f"--poses {spec!r}: unknown scheme {scheme!r}; {hint}")
+    parts = urlsplit(text)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if (
+        not text.lower().startswith(f"{scheme}://")
+        or port is None
+        or parts.path not in ("", "/")
+        or parts.query
+        or parts.fragment
+        or parts.username
+    ):
+        raise ConfigError(f"--poses {spec!r}: not a valid {scheme} address; {hint}")
+    host = parts.hostname or ""
+    if scheme == "udp":
+        return UdpPoseSource(host, port)
+    return TcpPoseSource(host, port)
