@@ -44,11 +44,14 @@ def test_enu_and_azel_match_pymap3d():
     target_ecef = geodesy.geodetic_to_ecef(
         rng.uniform(-90, 90, 50), rng.uniform(-180, 180, 50), rng.uniform(0, 2e7, 50)
     )
-    for lat0, lon0, h0 in [(90.0, 0.0, 0.0), (-90.0, 45.0, 10.0), (0.0, 180.0, 0.0), (52.1, 11.6, 55.0)]:
+    for lat0, lon0, h0 in [
+        (90.0, 0.0, 0.0),
+        (-90.0, 45.0, 10.0),
+        (0.0, 180.0, 0.0),
+        (52.1, 11.6, 55.0),
+    ]:
         enu = geodesy.ecef_to_enu(target_ecef, lat0, lon0, h0)
-        ref = np.stack(
-            pymap3d.ecef2enu(*target_ecef.T, lat0, lon0, h0), axis=-1
-        )
+        ref = np.stack(pymap3d.ecef2enu(*target_ecef.T, lat0, lon0, h0), axis=-1)
         np.testing.assert_allclose(enu, ref, atol=ONE_MM * 10)
         az, el, rng_m = geodesy.enu_to_azel(enu)
         raz, rel, rrng = pymap3d.enu2aer(*ref.T)
@@ -140,6 +143,8 @@ def test_flat_earth_south_pole_and_antimeridian_wrap():
 
 
 def test_flat_earth_scale_is_the_papers_surface_distance_per_degree():
-    lat, lon = geodesy.flat_earth_to_geodetic(111_319.49 * np.cos(np.radians(60.0)), 111_319.49, 60.0, 0.0)
+    lat, lon = geodesy.flat_earth_to_geodetic(
+        111_319.49 * np.cos(np.radians(60.0)), 111_319.49, 60.0, 0.0
+    )
     assert lat == pytest.approx(61.0, abs=1e-7)
     assert lon == pytest.approx(1.0, abs=1e-7)

@@ -69,7 +69,13 @@ def _run(profile, sky, n_t=1, scene=None, seed=1, pos=None):
     t = 1.49e9 + np.arange(n_t, dtype=float)
     enu = np.zeros((n_t, 3)) if pos is None else pos
     return simulate(
-        rx, t, enu, np.zeros((n_t, 3)), np.ones(n_t, bool), ReceiverState(), np.random.default_rng(seed)
+        rx,
+        t,
+        enu,
+        np.zeros((n_t, 3)),
+        np.ones(n_t, bool),
+        ReceiverState(),
+        np.random.default_rng(seed),
     )
 
 
@@ -86,7 +92,9 @@ def test_empirical_sigma_matches_equation_within_5_percent(n_sats):
     expected = usarsim_sigma_m(n_sats, 8.0, 2.0)
     assert north.std() == pytest.approx(expected, rel=0.05)
     assert east.std() == pytest.approx(expected, rel=0.05)
-    np.testing.assert_allclose(fixes.alt_msl_m + fixes.geoid_sep_m, fixes.truth_alt_hae_m, atol=1e-6)
+    np.testing.assert_allclose(
+        fixes.alt_msl_m + fixes.geoid_sep_m, fixes.truth_alt_hae_m, atol=1e-6
+    )
 
 
 def test_dop_zenith_plus_three_horizon_satellites():
@@ -154,7 +162,12 @@ def test_no_pose_gives_no_fix():
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
     rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
     fixes, _ = simulate(
-        rx, np.array([1.49e9]), np.full((1, 3), np.nan), np.zeros((1, 3)), np.zeros(1, bool),
-        ReceiverState(), np.random.default_rng(0),
+        rx,
+        np.array([1.49e9]),
+        np.full((1, 3), np.nan),
+        np.zeros((1, 3)),
+        np.zeros(1, bool),
+        ReceiverState(),
+        np.random.default_rng(0),
     )
     assert fixes.quality[0] == 0 and fixes.used.sum() == 0 and np.isnan(fixes.lat_deg[0])

@@ -105,11 +105,11 @@ def ecef_to_enu_matrix(lat_deg: ArrayLike, lon_deg: ArrayLike) -> F64:
     lon = np.radians(np.asarray(lon_deg, dtype=float))
     sl, cl = np.sin(lat), np.cos(lat)
     so, co = np.sin(lon), np.cos(lon)
-    zero = np.zeros_like(sl * so)
-    east = np.stack(np.broadcast_arrays(-so, co, zero), axis=-1)
-    north = np.stack(np.broadcast_arrays(-sl * co, -sl * so, cl), axis=-1)
-    up = np.stack(np.broadcast_arrays(cl * co, cl * so, sl), axis=-1)
-    return np.stack([east, north, up], axis=-2)
+    rot = np.zeros(np.broadcast_shapes(lat.shape, lon.shape) + (3, 3))
+    rot[..., 0, 0], rot[..., 0, 1] = -so, co  # East
+    rot[..., 1, 0], rot[..., 1, 1], rot[..., 1, 2] = -sl * co, -sl * so, cl  # North
+    rot[..., 2, 0], rot[..., 2, 1], rot[..., 2, 2] = cl * co, cl * so, sl  # Up
+    return rot
 
 
 def ecef_to_enu(
@@ -298,7 +298,11 @@ def radii_of_curvature_m(lat_deg: ArrayLike) -> tuple[F64, F64]:
 
 
 def offset_geodetic_deg(
-    lat_deg: ArrayLike, lon_deg: ArrayLike, alt_hae_m: ArrayLike, east_m: ArrayLike, north_m: ArrayLike
+    lat_deg: ArrayLike,
+    lon_deg: ArrayLike,
+    alt_hae_m: ArrayLike,
+    east_m: ArrayLike,
+    north_m: ArrayLike,
 ) -> tuple[F64, F64]:
     """Move a geodetic point by small east/north offsets (first order, WGS-84 radii).
 

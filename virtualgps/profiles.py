@@ -21,8 +21,22 @@ DEFAULT_PROFILE = "holux-m1000"
 
 # Settings of a run (not of the receiver) that a config file may set at its top level.
 RUN_KEYS = frozenset(
-    {"scene", "profile", "tle", "poses", "link", "serial", "baud_rate", "rate", "start_time",
-     "seed", "origin", "out", "fixes", "georef"}
+    {
+        "scene",
+        "profile",
+        "tle",
+        "poses",
+        "link",
+        "serial",
+        "baud_rate",
+        "rate",
+        "start_time",
+        "seed",
+        "origin",
+        "out",
+        "fixes",
+        "georef",
+    }
 )
 
 

@@ -12,7 +12,7 @@ elevation mask -> line of sight against the scene -> used satellites -> DOP -> e
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -35,7 +35,9 @@ class Ephemeris(Protocol):
 class Occluder(Protocol):
     """Line-of-sight queries in the scene's local ENU frame."""
 
-    def blocked(self, origins_enu_m: np.ndarray, dirs_enu: np.ndarray, cls: str = ...) -> np.ndarray:
+    def blocked(
+        self, origins_enu_m: np.ndarray, dirs_enu: np.ndarray, cls: str = ...
+    ) -> np.ndarray:
         """(m,) bool: does the ray from each origin along each direction hit the class?"""
         ...
 
@@ -72,8 +74,10 @@ class Receiver:
     """Everything fixed during a run: profile, ephemeris, scene and georeference.
 
     sky_shift_s : seconds subtracted from the epoch time before propagating satellites (the
-        sky-time policy: 0 for the true sky; a whole number of sidereal days when the simulated
-        time lies far from the TLE epoch)
+        sky-time policy: 0 for the true sky; a whole number of sky-repeat periods when the
+        simulated time lies far from the TLE epoch)
+    origin_ecef_m : (3,) ECEF of the georeference point (derived)
+    origin_rot : (3, 3) ECEF -> scene ENU rotation (derived; rows E, N, U)
     """
 
     profile: Profile
@@ -81,6 +85,17 @@ class Receiver:
     scene: Occluder | None
     georef: Georef
     sky_shift_s: float = 0.0
+    origin_ecef_m: np.ndarray = field(init=False, repr=False, compare=False)
+    origin_rot: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        g = self.georef
+        # Computed once: the daemon calls the core once per epoch, where numpy's per-call
+        # overhead on tiny arrays dominates.
+        object.__setattr__(
+            self, "origin_ecef_m", geodesy.geodetic_to_ecef(g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+        )
+        object.__setattr__(self, "origin_rot", geodesy.ecef_to_enu_matrix(g.lat0_deg, g.lon0_deg))
 
 
 @dataclass(frozen=True)
@@ -175,32 +190,33 @@ def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 
 def antenna_geodetic(
-    antenna_enu_m: np.ndarray, georef: Georef, mode: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Geodetic position of antenna points given in the scene's ENU frame.
+    antenna_enu_m: np.ndarray, rx: Receiver
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Geodetic and ECEF position of antenna points given in the scene's ENU frame.
 
     Parameters
     ----------
     antenna_enu_m : (..., 3) metres, scene ENU (origin at the georeference point)
-    georef : the scene origin
-    mode : "wgs84" (exact) or "flat_earth" (the paper's conversion and wraps)
+    rx : the receiver; its profile's ``georef`` is "wgs84" (exact) or "flat_earth" (the paper's
+        conversion and wraps)
 
     Returns
     -------
     lat_deg, lon_deg, alt_hae_m : (...) float
+    ecef_m : (..., 3) float, metres, ECEF
     """
     enu = np.asarray(antenna_enu_m, dtype=float)
-    if mode == "flat_earth":
-        lat, lon = geodesy.flat_earth_to_geodetic(
-            enu[..., 0], enu[..., 1], georef.lat0_deg, georef.lon0_deg
-        )
-        return lat, lon, georef.alt0_hae_m + enu[..., 2]
-    return geodesy.enu_to_geodetic(enu, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+    if rx.profile.georef == "flat_earth":
+        g = rx.georef
+        lat, lon = geodesy.flat_earth_to_geodetic(enu[..., 0], enu[..., 1], g.lat0_deg, g.lon0_deg)
+        alt = g.alt0_hae_m + enu[..., 2]
+        return lat, lon, alt, geodesy.geodetic_to_ecef(lat, lon, alt)
+    ecef = rx.origin_ecef_m + enu @ rx.origin_rot  # rows of origin_rot are E, N, U in ECEF
+    lat, lon, alt = geodesy.ecef_to_geodetic(ecef)
+    return lat, lon, alt, ecef
 
 
-def compute_sky(
-    rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray
-) -> Sky:
+def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -> Sky:
     """Satellite directions, the elevation mask and line-of-sight blocking at each epoch.
 
     Parameters
@@ -215,8 +231,7 @@ def compute_sky(
     """
     t = np.atleast_1d(np.asarray(t_unix_s, dtype=float))
     ant = np.asarray(antenna_enu_m, dtype=float)
-    lat, lon, alt = antenna_geodetic(ant, rx.georef, rx.profile.georef)
-    ant_ecef = geodesy.geodetic_to_ecef(lat, lon, alt)  # (..., n_t, 3)
+    lat, lon, alt, ant_ecef = antenna_geodetic(ant, rx)  # ant_ecef (..., n_t, 3)
     sat_ecef = rx.ephemeris.sat_ecef_m(t - rx.sky_shift_s)  # (n_t, n_sat, 3)
     d_ecef = sat_ecef - ant_ecef[..., None, :]  # (..., n_t, n_sat, 3)
     rng_m = np.linalg.norm(d_ecef, axis=-1, keepdims=True)
@@ -230,9 +245,8 @@ def compute_sky(
     if rx.scene is not None and above.any():
         # Rays are cast in the scene's frame: the ENU frame of the georeference point, whose
         # axes differ from the antenna's local ENU by the Earth's curvature (~0.009 deg per km).
-        rot0 = geodesy.ecef_to_enu_matrix(rx.georef.lat0_deg, rx.georef.lon0_deg)
         idx = np.nonzero(above)
-        dirs = u_ecef[idx] @ rot0.T
+        dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = np.broadcast_to(ant[..., None, :], above.shape + (3,))[idx]
         hit = rx.scene.blocked(origins, dirs, cls="occluder")
         if rx.profile.sky.foliage == "block":
@@ -263,7 +277,9 @@ def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.n
     return seen & (rank < max_channels)
 
 
-def cn0_from_elevation_dbhz(el_deg: np.ndarray, horizon_dbhz: float, zenith_dbhz: float) -> np.ndarray:
+def cn0_from_elevation_dbhz(
+    el_deg: np.ndarray, horizon_dbhz: float, zenith_dbhz: float
+) -> np.ndarray:
     """C/N0 of a directly received satellite: linear in sin(elevation).
 
     Parameters
@@ -338,7 +354,9 @@ def simulate(
     course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
 
     in_view = (np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0) & pose_valid[:, None]
-    cn0 = cn0_from_elevation_dbhz(sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz)
+    cn0 = cn0_from_elevation_dbhz(
+        sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
+    )
     cn0 = np.where(seen, cn0, np.nan)
     nofix = np.where(has_fix, 1.0, np.nan)
     truth_nan = np.where(pose_valid, 1.0, np.nan)
@@ -365,5 +383,9 @@ def simulate(
         truth_lon_deg=sky.lon_deg * truth_nan,
         truth_alt_hae_m=sky.alt_hae_m * truth_nan,
     )
-    new_state = replace(state, n_epochs=state.n_epochs + n_t, last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s)
+    new_state = replace(
+        state,
+        n_epochs=state.n_epochs + n_t,
+        last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
+    )
     return fixes, new_state

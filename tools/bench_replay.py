@@ -1,0 +1,124 @@
+"""Benchmark: replay throughput and live CPU per epoch on the Magdeburg scene.
+
+Usage (pin to one core, as the README's figures were measured):
+
+    taskset -c 0 python tools/bench_replay.py [--profile NAME] [--hours 1] [--live-epochs 2000]
+
+Replay: a 1 h, 1 Hz walk (the scene's demo loop) written as a JSONL pose log, replayed through
+``virtualgps replay`` (the CLI's code path, in-process), NMEA to a file. Reports epochs per second
+of wall time, excluding the one-off start-up (imports, mesh and Embree build), which is reported
+separately.
+
+Live: the daemon's per-epoch work (interpolate the pose, simulate one epoch, render its NMEA) for
+``--live-epochs`` consecutive epochs, measured as process CPU time per epoch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps import config, nmea, pose
+from virtualgps.cli import main as cli_main
+from virtualgps.daemon import demo_track
+from virtualgps.receiver import ReceiverState, simulate
+
+START_UNIX_S = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the Magdeburg waypoint logs
+
+
+def write_walk(path: Path, hours: float) -> pose.PoseTrack:
+    """The scene's demo loop for ``hours`` at 10 poses per second, as JSONL."""
+    scene, _, _ = config.load_scene_for(config.resolve({}))
+    track = demo_track(scene.demo_waypoints_enu_m, scene.demo_speed_mps, START_UNIX_S, hours * 3600)
+    t = np.arange(track.t_unix_s[0], track.t_unix_s[0] + hours * 3600 + 1e-9, 0.1)
+    pos, _, _ = pose.interpolate(track, t, 10.0)
+    with open(path, "w") as f:
+        for ti, p in zip(t.tolist(), pos.tolist(), strict=True):
+            f.write(
+                json.dumps(
+                    {
+                        "t": round(ti, 3),
+                        "x": round(p[0], 3),
+                        "y": round(p[1], 3),
+                        "z": round(p[2], 3),
+                    }
+                )
+                + "\n"
+            )
+    return track
+
+
+def bench_replay(poses: Path, out: Path, profile: str) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    code = cli_main(["replay", str(poses), "--out", str(out), "--profile", profile, "--seed", "1"])
+    assert code == 0
+    n = sum(1 for line in open(out, "rb") if line.startswith(b"$GPGGA"))
+    return time.perf_counter() - t0, n
+
+
+def bench_startup(profile: str) -> float:
+    """Wall time of loading profile, scene (mesh + Embree) and TLEs: what a replay pays once."""
+    t0 = time.perf_counter()
+    cfg = config.resolve({"profile": profile})
+    scene, _, tle = config.load_scene_for(cfg)
+    config.load_ephemeris(cfg, tle)
+    return time.perf_counter() - t0
+
+
+def bench_live(profile: str, n_epochs: int) -> float:
+    """Process CPU seconds per epoch of the daemon's per-epoch work."""
+    cfg = config.resolve({"profile": profile})
+    scene, georef, tle = config.load_scene_for(cfg)
+    eph, _ = config.load_ephemeris(cfg, tle)
+    rx = config.make_receiver(cfg, scene, georef, eph, START_UNIX_S)
+    fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
+    track = demo_track(
+        scene.demo_waypoints_enu_m, scene.demo_speed_mps, START_UNIX_S, n_epochs + 10
+    )
+    rng = np.random.default_rng(0)
+    state = ReceiverState()
+    sink = bytearray()
+    c0 = time.process_time()
+    for k in range(n_epochs):
+        t = np.array([START_UNIX_S + k])
+        p, v, ok = pose.interpolate(track, t, 2.0)
+        fixes, state = simulate(rx, t, p, v, ok, state, rng)
+        sink += nmea.epoch_sentences(fixes, 0, fmt)
+    return (time.process_time() - c0) / n_epochs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--profile", default="holux-m1000")
+    ap.add_argument("--hours", type=float, default=1.0)
+    ap.add_argument("--live-epochs", type=int, default=2000)
+    args = ap.parse_args()
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    with tempfile.TemporaryDirectory() as tmp:
+        poses = Path(tmp) / "walk.jsonl"
+        write_walk(poses, args.hours)
+        startup_s = bench_startup(args.profile)
+        wall_s, n = bench_replay(poses, Path(tmp) / "out.nmea", args.profile)
+    live_s = bench_live(args.profile, args.live_epochs)
+    print(f"profile {args.profile}, {cores} core(s) available to the process")
+    print(
+        f"replay: {n} epochs in {wall_s:.2f} s including start-up ({startup_s:.2f} s) "
+        f"-> {n / wall_s:,.0f} epochs/s overall, {n / max(wall_s - startup_s, 1e-9):,.0f} "
+        "epochs/s after start-up"
+    )
+    print(f"live: {live_s * 1e3:.3f} ms CPU per epoch over {args.live_epochs} epochs")
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,401 @@
+"""The ``virtualgps`` command (DESIGN section 3); the only module that prints.
+
+Subcommands: ``run`` (the daemon), ``replay`` (batch), ``sky`` (what the antenna sees).
+Errors are one line on stderr and a non-zero exit; ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from virtualgps import __version__
+from virtualgps.exceptions import VirtualGPSError
+
+log = logging.getLogger("virtualgps")
+
+EXIT_ERROR = 2
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--scene",
+        help="scene folder or scene.toml, a bundled scene name, or 'none' "
+        "for open sky (default: the bundled magdeburg-campus)",
+    )
+    p.add_argument(
+        "--profile",
+        help="receiver profile: holux-m1000 (default), usarsim, ideal, or a profile TOML path",
+    )
+    p.add_argument(
+        "--config", help="TOML file of settings (precedence: defaults < profile < config < flags)"
+    )
+    p.add_argument(
+        "--tle",
+        help="TLE file or satellite lookup table (default: the scene's set, "
+        "else the newest bundled set)",
+    )
+    p.add_argument("--rate", type=float, help="output rate in Hz (default: the profile's, 1 Hz)")
+    p.add_argument("--start-time", help="simulated UTC start, ISO 8601 (default: now)")
+    p.add_argument("--seed", type=int, help="random seed (default 0)")
+    p.add_argument("--origin", help="LAT,LON,ALT_HAE of the scene origin (overrides the scene)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="virtualgps",
+        description="A virtual GPS receiver for robots: poses in, Holux M-1000 NMEA out.",
+    )
+    parser.add_argument("--version", action="version", version=f"virtualgps {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser(
+        "run",
+        help="the daemon: poses in, NMEA out on a pseudo-terminal",
+        description="Create the device, print its path, emit one epoch per "
+        "period until SIGINT/SIGTERM.",
+    )
+    _common(run)
+    run.add_argument(
+        "--poses",
+        default="udp://127.0.0.1:5600",
+        help="udp://HOST:PORT (default udp://127.0.0.1:5600), tcp://HOST:PORT "
+        "(we listen), '-' (stdin), a pose log file (paced in real time), or demo",
+    )
+    run.add_argument(
+        "--link",
+        default="./virtualgps0",
+        help="stable symlink to the pty slave (default ./virtualgps0)",
+    )
+    run.add_argument("--serial", help="drive this real serial port instead of a pty")
+    run.add_argument("--baud", type=int, help="baud rate (default: the profile's, 38400)")
+    run.add_argument("--duration", type=float, help="stop after this many seconds")
+
+    rep = sub.add_parser(
+        "replay",
+        help="run the receiver over a pose log as fast as possible",
+        description="Replay a pose log (JSONL, CSV, TUM, NMEA) and write NMEA.",
+    )
+    _common(rep)
+    rep.add_argument("poses", help="pose log file")
+    rep.add_argument("--out", required=True, help="NMEA output file ('-' for stdout)")
+    rep.add_argument("--fixes", help="also write one CSV row per epoch here")
+
+    sky = sub.add_parser("sky", help="what the antenna sees at one place and time")
+    _common(sky)
+    where = sky.add_mutually_exclusive_group()
+    where.add_argument("--at", help="X,Y,Z antenna position in scene ENU metres (default 0,0,1.5)")
+    where.add_argument("--lla", help="LAT,LON,ALT_HAE antenna position")
+    sky.add_argument("--time", help="UTC time, ISO 8601 (default: now); no sky-time mapping")
+    sky.add_argument("--json", action="store_true", help="print a JSON list")
+    sky.add_argument("--plot", help="draw a skyplot to this PNG file")
+    return parser
+
+
+def _flags(args: argparse.Namespace) -> dict[str, Any]:
+    keys = ("scene", "profile", "config", "tle", "rate", "start_time", "seed", "origin", "baud")
+    return {k: getattr(args, k, None) for k in keys}
+
+
+def _xyz(text: str, what: str) -> np.ndarray:
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        v = np.array([])
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise VirtualGPSError(f"{what} must be three numbers separated by commas, got {text!r}")
+    return v
+
+
+class StatusLine:
+    """A one-line live status on a terminal, rewritten each epoch."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.active = stream.isatty()
+
+    def show(self, text: str) -> None:
+        if self.active:
+            self.stream.write("\r\x1b[2K" + text)
+            self.stream.flush()
+
+    def end(self) -> None:
+        if self.active:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _status_text(fixes, stats, device) -> str:
+    t = time.strftime("%H:%M:%S", time.gmtime(float(fixes.t_unix_s[0])))
+    seen = int(fixes.in_view[0].sum())
+    used = int(fixes.used[0].sum())
+    if fixes.quality[0] > 0:
+        where = (
+            f"{abs(fixes.lat_deg[0]):.6f}{'N' if fixes.lat_deg[0] >= 0 else 'S'} "
+            f"{abs(fixes.lon_deg[0]):.6f}{'E' if fixes.lon_deg[0] >= 0 else 'W'} "
+            f"{fixes.alt_msl_m[0]:.1f} m  HDOP {fixes.hdop[0]:.1f}"
+        )
+        fix = "3D fix"
+    else:
+        where, fix = "", "no fix"
+    dropped = getattr(device, "dropped_epochs", 0)
+    extra = f"  (dropped {dropped} unread epochs)" if dropped else ""
+    return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from virtualgps import config, daemon, nmea, pose, transport
+
+    cfg = config.resolve(_flags(args))
+    scene, georef, scene_tle = config.load_scene_for(cfg)
+    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle)
+    clock = daemon.SimClock(cfg.start_time_unix_s)
+    t0 = clock.now_unix_s()
+    prof = cfg.profile
+    log.info(
+        "profile %s (%s), scene %s, TLE %s, seed %d, rate %g Hz, baud %d",
+        prof.name,
+        prof.source,
+        cfg.scene or config.DEFAULT_SCENE,
+        tle_path,
+        cfg.seed,
+        prof.rate_hz,
+        prof.baud,
+    )
+    fmt = nmea.NmeaFormat.from_dict(prof.nmea)
+
+    # Pose source.
+    spec = args.poses
+    is_log = spec != "demo" and not spec.startswith(("udp://", "tcp://")) and spec != "-"
+    if georef is None and is_log:
+        track = pose.read_pose_log(Path(spec))
+        if track.frame != "geodetic":
+            config.require_georef(None, "geodetic poses")
+        georef = config.Georef(*(float(v) for v in track.xyz[0]))
+    elif georef is None:
+        # Open sky, live geodetic poses, no --origin. With exact WGS-84 geodesy the ENU frame's
+        # origin is arbitrary (the ECEF<->ENU round trip is exact), so any origin will do; the
+        # paper's flat earth needs a real one.
+        if prof.georef == "flat_earth":
+            config.require_georef(None, "a scene")
+        georef = config.Georef(0.0, 0.0, 0.0)
+    if spec == "demo":
+        waypoints = getattr(scene, "demo_waypoints_enu_m", None) if scene is not None else None
+        speed = getattr(scene, "demo_speed_mps", 1.4) if scene is not None else 1.4
+        if waypoints is None or len(waypoints) < 2:
+            # Open sky or a scene without [demo]: a 40 m square around the origin, antenna 1.5 m up.
+            waypoints = np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5], [0, 40, 1.5]], float)
+        track = daemon.demo_track(
+            np.asarray(waypoints, float), float(speed), t0, args.duration or 7 * 86400.0
+        )
+        provider = daemon.TrackProvider(track, t0, prof.pose_timeout_s)
+    elif spec.startswith(("udp://", "tcp://")) or spec == "-":
+        provider = daemon.LiveProvider(
+            transport.open_pose_source(spec), georef, clock, prof.pose_timeout_s
+        )
+    else:
+        from virtualgps.replay import track_in_scene
+
+        track = pose.read_pose_log(Path(spec))
+        provider = daemon.TrackProvider(track_in_scene(track, georef), t0, prof.pose_timeout_s)
+
+    rx = config.make_receiver(cfg, scene, georef, ephemeris, t0)
+
+    if args.serial:
+        device = transport.SerialDevice(args.serial, args.baud or prof.baud)
+        print(f"device: {args.serial}", flush=True)
+    else:
+        device = transport.PtyDevice(Path(args.link), baud=prof.baud)
+        print(f"device: {device.slave_path} -> {args.link}", flush=True)
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if args.duration:
+        timer = threading.Timer(args.duration, stop.set)
+        timer.daemon = True
+        timer.start()
+    status = StatusLine(sys.stdout)
+
+    def on_epoch(fixes, stats) -> None:
+        status.show(_status_text(fixes, stats, device))
+
+    try:
+        stats = daemon.run_daemon(
+            rx, provider, device, fmt, clock, np.random.default_rng(cfg.seed), stop, on_epoch
+        )
+    finally:
+        status.end()
+        device.close()
+        provider.close()
+    bad = getattr(provider, "bad", None)
+    log.info(
+        "stopped after %d epochs (%d with a fix, %d late, %d skipped)%s",
+        stats.epochs,
+        stats.fixes,
+        stats.late_epochs,
+        stats.skipped_epochs,
+        f"; malformed pose messages: {dict(bad)}" if bad else "",
+    )
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from virtualgps import config, nmea, pose, replay
+
+    cfg = config.resolve(_flags(args))
+    scene, georef, scene_tle = config.load_scene_for(cfg)
+    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle)
+    track = pose.read_pose_log(Path(args.poses))
+    if georef is None:
+        if track.frame != "geodetic":
+            config.require_georef(None, "a geodetic pose log")
+        georef = config.Georef(*(float(v) for v in track.xyz[0]))
+    track = replay.track_in_scene(track, georef)
+    grid = replay.epoch_grid(track.t_unix_s, cfg.profile.rate_hz, cfg.start_time_unix_s)
+    if len(grid.t_unix_s) == 0:
+        raise VirtualGPSError(f"{args.poses}: the pose log spans less than one output period")
+    rx = config.make_receiver(cfg, scene, georef, ephemeris, float(grid.t_unix_s[0]))
+    fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
+    log.info(
+        "replay %s: %d epochs, profile %s, TLE %s, seed %d",
+        args.poses,
+        len(grid.t_unix_s),
+        cfg.profile.name,
+        tle_path,
+        cfg.seed,
+    )
+    progress = _progress_bar(sys.stderr)
+    out = sys.stdout.buffer if args.out == "-" else open(args.out, "wb")  # noqa: SIM115
+    fixes_out = open(args.fixes, "w", newline="") if args.fixes else None  # noqa: SIM115
+    t_start = time.perf_counter()
+    try:
+        n = replay.run_replay(rx, track, grid, fmt, out, cfg.seed, fixes_out, progress)
+    finally:
+        if out is not sys.stdout.buffer:
+            out.close()
+        if fixes_out is not None:
+            fixes_out.close()
+    dt = time.perf_counter() - t_start
+    log.info("wrote %d epochs in %.2f s (%.0f epochs/s)", n, dt, n / max(dt, 1e-9))
+    return 0
+
+
+def _progress_bar(stream):
+    if not stream.isatty():
+        return None
+
+    def show(done: int, total: int) -> None:
+        width = 40
+        k = int(width * done / max(total, 1))
+        stream.write(f"\r[{'#' * k}{'.' * (width - k)}] {done}/{total} epochs")
+        if done >= total:
+            stream.write("\n")
+        stream.flush()
+
+    return show
+
+
+def cmd_sky(args: argparse.Namespace) -> int:
+    from virtualgps import config, geodesy
+    from virtualgps.receiver import compute_sky
+
+    cfg = config.resolve(_flags(args))
+    scene, georef, scene_tle = config.load_scene_for(cfg)
+    ephemeris, _ = config.load_ephemeris(cfg, scene_tle)
+    t = config.parse_time(args.time) if args.time else time.time()
+    if args.lla:
+        lla = _xyz(args.lla, "--lla")
+        if georef is None:
+            georef = config.Georef(*lla)
+        at = geodesy.ecef_to_enu(
+            geodesy.geodetic_to_ecef(*lla), georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m
+        )
+    else:
+        georef = config.require_georef(georef, "--lla")
+        at = _xyz(args.at, "--at") if args.at else np.array([0.0, 0.0, 1.5])
+    # --time is taken literally: no sky-time mapping here.
+    rx = config.make_receiver(cfg, scene, georef, ephemeris, t, apply_sky_policy=False)
+    sky = compute_sky(rx, np.array([t]), at[None, :])
+    rows = sky_rows(rx, sky)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        print(f"{'prn':>4} {'az_deg':>7} {'el_deg':>7}  state")
+        for r in rows:
+            print(
+                f"{r['prn']:>4} {r['az_deg']:7.2f} {r['el_deg']:7.2f}  {r['state']}"
+                + (f"  {r['cn0_dbhz']:.1f} dB-Hz" if r.get("cn0_dbhz") is not None else "")
+            )
+    if args.plot:
+        from virtualgps.plot import skyplot
+
+        skyplot(
+            rows, Path(args.plot), title=f"{time.strftime('%Y-%m-%d %H:%M:%SZ', time.gmtime(t))}"
+        )
+        log.info("skyplot written to %s", args.plot)
+    return 0
+
+
+def sky_rows(rx, sky) -> list[dict[str, Any]]:
+    """One row per satellite above the horizon: prn, az_deg, el_deg, state (+ cn0_dbhz)."""
+    from virtualgps.receiver import cn0_from_elevation_dbhz
+
+    rows = []
+    sig = rx.profile.signal
+    for j, prn in enumerate(np.asarray(rx.ephemeris.prn).tolist()):
+        el = float(sky.el_deg[0, j])
+        if not np.isfinite(el) or el < 0.0:
+            continue
+        if not sky.above_mask[0, j]:
+            state = "below_mask"
+        elif sky.blocked[0, j]:
+            state = "blocked"
+        else:
+            state = "visible"
+        row: dict[str, Any] = {
+            "prn": int(prn),
+            "az_deg": round(float(sky.az_deg[0, j]), 3),
+            "el_deg": round(el, 3),
+            "state": state,
+        }
+        row["cn0_dbhz"] = (
+            round(float(cn0_from_elevation_dbhz(el, sig.cn0_horizon_dbhz, sig.cn0_zenith_dbhz)), 1)
+            if state == "visible"
+            else None
+        )
+        rows.append(row)
+    return sorted(rows, key=lambda r: -r["el_deg"])
+
+
+COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``virtualgps`` command; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.INFO,
+        format="virtualgps: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return COMMANDS[args.command](args)
+    except VirtualGPSError as exc:
+        if args.debug:
+            raise
+        print(f"virtualgps: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        return 0

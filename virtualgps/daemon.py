@@ -1,0 +1,288 @@
+"""The live loop: one epoch per period on absolute ticks of the simulated clock.
+
+Epochs fall on whole multiples of 1/rate of simulated UTC. Each epoch interpolates the pose to
+the epoch time, runs :func:`virtualgps.receiver.simulate` on that one epoch (the code replay runs
+on thousands), renders NMEA and hands it to the device, which never blocks. Pose messages are
+read whenever they arrive, between epochs.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from virtualgps import nmea, pose
+from virtualgps.exceptions import PoseError
+from virtualgps.receiver import Georef, Receiver, ReceiverState, simulate
+from virtualgps.records import Fixes
+
+log = logging.getLogger(__name__)
+
+LIVE_POSE_HISTORY = 64  # poses kept for interpolation; a few seconds at typical robot rates
+MAX_MESSAGES_PER_PUMP = 20_000  # bound the work between two epochs under a message flood
+
+
+@dataclass
+class SimClock:
+    """Simulated UTC running at wall-clock speed from ``start_unix_s`` (or the wall clock itself).
+
+    offset_s : simulated minus wall-clock time; poses stamped by the robot's (wall) clock are
+        moved by it onto the simulated clock
+    """
+
+    start_unix_s: float | None = None
+    _mono0: float = field(default_factory=time.monotonic)
+    _wall0: float = field(default_factory=time.time)
+
+    @property
+    def offset_s(self) -> float:
+        return 0.0 if self.start_unix_s is None else self.start_unix_s - self._wall0
+
+    def now_unix_s(self) -> float:
+        """Simulated UTC now, seconds."""
+        base = self._wall0 if self.start_unix_s is None else self.start_unix_s
+        return base + (time.monotonic() - self._mono0)
+
+    def monotonic_at(self, t_unix_s: float) -> float:
+        """The monotonic-clock time at which the simulated clock reads ``t_unix_s``."""
+        base = self._wall0 if self.start_unix_s is None else self.start_unix_s
+        return self._mono0 + (t_unix_s - base)
+
+
+class PoseProvider(Protocol):
+    """Where the daemon gets the antenna pose at an epoch."""
+
+    def fileno_list(self) -> list[int]:
+        """File descriptors to wait on for incoming poses (may be empty)."""
+        ...
+
+    def pump(self) -> None:
+        """Read whatever has arrived (never blocks)."""
+        ...
+
+    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pos (n, 3) scene ENU m, vel (n, 3) ENU m/s, valid (n,) bool) at simulated times."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class TrackProvider:
+    """A pose log (or any PoseTrack in scene ENU) replayed in real time from ``t0_unix_s``."""
+
+    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
+        self.track = track
+        self.shift_s = t0_unix_s - float(track.t_unix_s[0])
+        self.max_gap_s = max_gap_s
+
+    def fileno_list(self) -> list[int]:
+        return []
+
+    def pump(self) -> None:
+        return None
+
+    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return pose.interpolate(self.track, np.asarray(t_unix_s) - self.shift_s, self.max_gap_s)
+
+    def close(self) -> None:
+        return None
+
+
+def demo_track(
+    waypoints_enu_m: np.ndarray, speed_mps: float, t0_unix_s: float, duration_s: float
+) -> pose.PoseTrack:
+    """A scripted walk: the closed waypoint loop at constant speed, repeated for ``duration_s``.
+
+    Parameters
+    ----------
+    waypoints_enu_m : (n, 3) metres, scene ENU (antenna positions)
+    speed_mps : walking speed
+    t0_unix_s : time of the first waypoint
+    duration_s : how long to walk (the loop repeats)
+
+    Returns
+    -------
+    track : PoseTrack in the scene ENU frame, one pose per waypoint passage, with velocities
+    """
+    pts = np.asarray(waypoints_enu_m, dtype=float)
+    loop = np.vstack([pts, pts[:1]])
+    seg = np.linalg.norm(np.diff(loop, axis=0), axis=1)
+    lap_s = float(seg.sum()) / speed_mps
+    n_laps = max(1, math.ceil(duration_s / lap_s))
+    leg_t = np.concatenate([[0.0], np.cumsum(seg) / speed_mps])  # (n + 1,)
+    t = (leg_t[None, :-1] + lap_s * np.arange(n_laps)[:, None]).ravel()
+    t = np.append(t, n_laps * lap_s)
+    xyz = np.vstack([np.tile(pts, (n_laps, 1)), pts[:1]])
+    return pose.PoseTrack(
+        t_unix_s=t0_unix_s + t, frame="enu", xyz=xyz, vel_enu_mps=np.full_like(xyz, np.nan)
+    )
+
+
+class LiveProvider:
+    """Poses from a message source (UDP, TCP, stdin): parsed, counted, kept for interpolation.
+
+    Malformed messages are counted per kind and logged once per kind; they never stop the daemon.
+    """
+
+    def __init__(self, source, georef: Georef, clock: SimClock, max_gap_s: float) -> None:
+        self.source = source
+        self.georef = georef
+        self.clock = clock
+        self.max_gap_s = max_gap_s
+        self.history: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=LIVE_POSE_HISTORY)
+        self.bad: Counter[str] = Counter()
+        self.n_good = 0
+        self._track: pose.PoseTrack | None = None
+
+    def fileno_list(self) -> list[int]:
+        return list(self.source.fileno_list())
+
+    def _to_enu(self, p: pose.Pose) -> np.ndarray:
+        if p.frame == "enu":
+            return np.asarray(p.xyz, dtype=float)
+        track = pose.PoseTrack(
+            np.array([p.t_unix_s]),
+            "geodetic",
+            np.asarray([p.xyz], float),
+            np.asarray([p.vel_enu_mps], float),
+        )
+        g = self.georef
+        return pose.to_enu(track, g.lat0_deg, g.lon0_deg, g.alt0_hae_m).xyz[0]
+
+    def pump(self) -> None:
+        messages = self.source.poll()[:MAX_MESSAGES_PER_PUMP]
+        for data, arrival_wall_s in messages:
+            try:
+                p = pose.parse_pose_message(data, arrival_wall_s)
+                enu = self._to_enu(p)
+            except PoseError as exc:
+                if self.bad[exc.kind] == 0:
+                    log.warning(
+                        "skipping malformed pose message (%s): %s "
+                        "(further ones of this kind are counted, not logged)",
+                        exc.kind,
+                        exc,
+                    )
+                self.bad[exc.kind] += 1
+                continue
+            t_sim = p.t_unix_s + self.clock.offset_s
+            if self.history and t_sim <= self.history[-1][0]:
+                if t_sim == self.history[-1][0]:
+                    continue
+                # Out-of-order message: keep the history sorted (rare; UDP may reorder).
+                items = sorted(
+                    [*self.history, (t_sim, enu, np.asarray(p.vel_enu_mps, float))],
+                    key=lambda item: item[0],
+                )
+                self.history = deque(items, maxlen=LIVE_POSE_HISTORY)
+            else:
+                self.history.append((t_sim, enu, np.asarray(p.vel_enu_mps, float)))
+            self.n_good += 1
+            self._track = None
+
+    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = np.asarray(t_unix_s, dtype=float)
+        if not self.history:
+            n = t.shape[0]
+            return np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        if self._track is None:
+            ts, xyz, vel = zip(*self.history, strict=True)
+            self._track = pose.PoseTrack(np.array(ts), "enu", np.array(xyz), np.array(vel))
+        return pose.interpolate(self._track, t, self.max_gap_s)
+
+    def close(self) -> None:
+        self.source.close()
+
+
+@dataclass
+class DaemonStats:
+    """Counters the status line and the exit summary show."""
+
+    epochs: int = 0
+    fixes: int = 0
+    late_epochs: int = 0
+    skipped_epochs: int = 0
+    max_lateness_s: float = 0.0
+
+
+def run_daemon(
+    rx: Receiver,
+    provider: PoseProvider,
+    device,
+    fmt: nmea.NmeaFormat,
+    clock: SimClock,
+    rng: np.random.Generator,
+    stop: threading.Event,
+    on_epoch: Callable[[Fixes, DaemonStats], None] | None = None,
+    max_epochs: int | None = None,
+) -> DaemonStats:
+    """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs).
+
+    Parameters
+    ----------
+    rx : the receiver
+    provider : pose source
+    device : output device (``write_epoch``, ``read_available``), never blocking
+    fmt : NMEA format
+    clock : the simulated clock
+    rng : random generator
+    stop : set by the signal handlers to end the loop
+    on_epoch : called after each epoch with its Fixes and the counters
+    max_epochs : stop after this many epochs (tests)
+
+    Returns
+    -------
+    stats : DaemonStats
+    """
+    rate = rx.profile.rate_hz
+    state = ReceiverState()
+    stats = DaemonStats()
+    k = math.ceil(clock.now_unix_s() * rate)
+    while not stop.is_set():
+        t_epoch = k / rate
+        deadline = clock.monotonic_at(t_epoch)
+        # Wait for the epoch, reading poses as they come.
+        while not stop.is_set():
+            provider.pump()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            timeout = min(remaining, 0.1)
+            fds = provider.fileno_list()  # stdin drops out at end of input
+            if fds:
+                select.select(fds, [], [], timeout)
+            else:
+                stop.wait(timeout)
+        if stop.is_set():
+            break
+        lateness = time.monotonic() - deadline
+        if lateness > 0.5 / rate:
+            stats.late_epochs += 1
+        stats.max_lateness_s = max(stats.max_lateness_s, lateness)
+        pos, vel, valid = provider.pose_at(np.array([t_epoch]))
+        fixes, state = simulate(rx, np.array([t_epoch]), pos, vel, valid, state, rng)
+        device.write_epoch(nmea.epoch_sentences(fixes, 0, fmt))
+        device.read_available()  # what the client wrote (gpsd's probes); the MTK link comes later
+        stats.epochs += 1
+        stats.fixes += int(fixes.quality[0] > 0)
+        if on_epoch is not None:
+            on_epoch(fixes, stats)
+        if max_epochs is not None and stats.epochs >= max_epochs:
+            break
+        k += 1
+        # Fell behind by more than one period (machine suspended, debugger): skip to now rather
+        # than emit a burst of old epochs.
+        k_now = math.floor(clock.now_unix_s() * rate)
+        if k_now > k:
+            stats.skipped_epochs += k_now - k
+            k = k_now
+    return stats

@@ -1,0 +1,168 @@
+"""Batch replay: a pose log through the receiver as fast as possible, NMEA (and a fixes CSV) out.
+
+The same :func:`virtualgps.receiver.simulate` as the live daemon, called on chunks of epochs with
+the state carried across, so the output does not depend on the chunk size: same seed and inputs
+give the same bytes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import BinaryIO, TextIO
+
+import numpy as np
+
+from virtualgps import nmea, pose
+from virtualgps.receiver import Georef, Receiver, ReceiverState, simulate
+from virtualgps.records import Fixes
+
+CHUNK_EPOCHS = 4096
+
+FIXES_COLUMNS = (
+    "t_unix_s",
+    "lat_deg",
+    "lon_deg",
+    "alt_msl_m",
+    "geoid_sep_m",
+    "quality",
+    "mode",
+    "sats_used",
+    "sats_in_view",
+    "hdop",
+    "vdop",
+    "pdop",
+    "speed_mps",
+    "course_deg",
+    "used_prns",
+    "truth_lat_deg",
+    "truth_lon_deg",
+    "truth_alt_hae_m",
+)
+
+
+@dataclass(frozen=True)
+class EpochGrid:
+    """Epoch times for a pose log: multiples of the output period inside the log's span.
+
+    t_unix_s : (n_t,) epoch times on the simulated clock
+    shift_s : seconds added to the log's times (``--start-time``), 0 otherwise
+    """
+
+    t_unix_s: np.ndarray
+    shift_s: float
+
+
+def epoch_grid(
+    track_t_unix_s: np.ndarray, rate_hz: float, start_time_unix_s: float | None
+) -> EpochGrid:
+    """Epochs on whole multiples of 1/rate of simulated UTC that lie within the pose log.
+
+    Parameters
+    ----------
+    track_t_unix_s : (n,) pose times, UTC seconds, increasing
+    rate_hz : output rate
+    start_time_unix_s : if given, pose times are shifted so the log starts then
+
+    Returns
+    -------
+    grid : EpochGrid
+    """
+    shift = 0.0 if start_time_unix_s is None else start_time_unix_s - float(track_t_unix_s[0])
+    t0, t1 = float(track_t_unix_s[0]) + shift, float(track_t_unix_s[-1]) + shift
+    # Integer epoch counters keep the times exact multiples of the period (no float drift).
+    k0, k1 = math.ceil(round(t0 * rate_hz, 6)), math.floor(round(t1 * rate_hz, 6))
+    return EpochGrid(np.arange(k0, k1 + 1, dtype=np.int64) / rate_hz, shift)
+
+
+def track_in_scene(track: pose.PoseTrack, georef: Georef) -> pose.PoseTrack:
+    """Express a pose track in the scene's ENU frame (geodetic tracks are converted)."""
+    if track.frame == "enu":
+        return track
+    return pose.to_enu(track, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+
+
+def run_replay(
+    rx: Receiver,
+    track: pose.PoseTrack,
+    grid: EpochGrid,
+    fmt: nmea.NmeaFormat,
+    out: BinaryIO,
+    seed: int,
+    fixes_out: TextIO | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> int:
+    """Run the receiver over every epoch of ``grid`` and write NMEA (and the fixes CSV).
+
+    Parameters
+    ----------
+    rx : the receiver
+    track : poses in the scene ENU frame (log times, unshifted)
+    grid : the epochs
+    fmt : NMEA format of the profile
+    out : binary stream for the NMEA
+    seed : random seed
+    fixes_out : text stream for the fixes CSV, or None
+    progress : called with (epochs done, epochs total) after each chunk
+
+    Returns
+    -------
+    n_epochs : number of epochs written
+    """
+    rng = np.random.default_rng(seed)
+    state = ReceiverState()
+    n = len(grid.t_unix_s)
+    max_gap_s = rx.profile.pose_timeout_s
+    if fixes_out is not None:
+        fixes_out.write(",".join(FIXES_COLUMNS) + "\n")
+    for a in range(0, n, CHUNK_EPOCHS):
+        t = grid.t_unix_s[a : a + CHUNK_EPOCHS]
+        pos, vel, valid = pose.interpolate(track, t - grid.shift_s, max_gap_s)
+        fixes, state = simulate(rx, t, pos, vel, valid, state, rng)
+        out.write(b"".join(nmea.render_batch(fixes, fmt)))
+        if fixes_out is not None:
+            fixes_out.write(fixes_csv_rows(fixes))
+        if progress is not None:
+            progress(min(a + CHUNK_EPOCHS, n), n)
+    return n
+
+
+def _col(values: np.ndarray, fmt: str) -> list[str]:
+    return ["" if not np.isfinite(v) else fmt % v for v in values.tolist()]
+
+
+def fixes_csv_rows(fixes: Fixes) -> str:
+    """The fixes as CSV rows (columns :data:`FIXES_COLUMNS`; empty fields where NaN).
+
+    Parameters
+    ----------
+    fixes : Fixes over n_t epochs
+
+    Returns
+    -------
+    text : n_t lines
+    """
+    prn = fixes.prn
+    used_prns = [" ".join(str(p) for p in prn[row]) for row in fixes.used]
+    cols = [
+        _col(fixes.t_unix_s, "%.3f"),
+        _col(fixes.lat_deg, "%.9f"),
+        _col(fixes.lon_deg, "%.9f"),
+        _col(fixes.alt_msl_m, "%.3f"),
+        _col(fixes.geoid_sep_m, "%.3f"),
+        [str(v) for v in fixes.quality.tolist()],
+        [str(v) for v in fixes.mode.tolist()],
+        [str(v) for v in fixes.sats_used.tolist()],
+        [str(v) for v in fixes.in_view.sum(axis=1).tolist()],
+        _col(fixes.hdop, "%.3f"),
+        _col(fixes.vdop, "%.3f"),
+        _col(fixes.pdop, "%.3f"),
+        _col(fixes.speed_mps, "%.3f"),
+        _col(fixes.course_deg, "%.2f"),
+        used_prns,
+        _col(fixes.truth_lat_deg, "%.9f"),
+        _col(fixes.truth_lon_deg, "%.9f"),
+        _col(fixes.truth_alt_hae_m, "%.3f"),
+    ]
+    return "".join(",".join(row) + "\n" for row in zip(*cols, strict=True))
