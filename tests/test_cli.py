@@ -1,0 +1,226 @@
+"""The command line: replay output against independent NMEA parsers and its own CSV, determinism,
+sky output, settings precedence and one-line errors naming the bad file."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pynmea2
+import pytest
+from pynmeagps import NMEAReader
+
+from virtualgps import config, replay
+from virtualgps.cli import main
+
+T0 = 1490712768.0  # 2017-03-28T14:52:48Z, the 2017-03-28 Magdeburg waypoint logs
+
+
+def write_walk(path: Path, n: int = 400, dt_s: float = 0.5) -> Path:
+    """A straight walk across the Magdeburg campus between buildings, 1.5 m above the ground."""
+    with open(path, "w") as f:
+        for i in range(n):
+            f.write(json.dumps({"t": T0 + i * dt_s, "x": -60.0 + 0.7 * i * dt_s / 0.5,
+                                "y": -80.0, "z": 55.0}) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("replay")
+    poses = write_walk(tmp / "walk.jsonl")
+    out, fixes = tmp / "out.nmea", tmp / "fixes.csv"
+    assert main(["replay", str(poses), "--out", str(out), "--fixes", str(fixes), "--seed", "4"]) == 0
+    return poses, out, fixes
+
+
+def _epochs(nmea_path: Path) -> list[list[str]]:
+    """Sentences grouped by epoch (a GGA starts each epoch)."""
+    epochs: list[list[str]] = []
+    for line in nmea_path.read_bytes().split(b"\r\n"):
+        if not line:
+            continue
+        text = line.decode("ascii")
+        if text.startswith("$GPGGA"):
+            epochs.append([])
+        epochs[-1].append(text)
+    return epochs
+
+
+def test_every_sentence_parses_and_equals_the_fixes_csv(replayed):
+    _, out, fixes_csv = replayed
+    raw = out.read_bytes()
+    assert raw.endswith(b"\r\n") and b"\n\n" not in raw
+    rows = list(csv.DictReader(open(fixes_csv)))
+    epochs = _epochs(out)
+    assert len(epochs) == len(rows) > 100
+    n_fix = 0
+    for sentences, row in zip(epochs, rows, strict=True):
+        kinds = [s[3:6] for s in sentences]
+        n_gsv = kinds.count("GSV")
+        assert kinds == ["GGA", "GSA"] + ["GSV"] * n_gsv + ["RMC", "VTG"]
+        parsed = {}
+        for s in sentences:
+            # pynmeagps with checksum validation, and pynmea2 with check=True.
+            msg = NMEAReader.parse(s.encode() + b"\r\n", validate=1)
+            p2 = pynmea2.parse(s, check=True)
+            parsed.setdefault(msg.msgID, []).append((msg, p2))
+        gga, gga2 = parsed["GGA"][0]
+        rmc, _ = parsed["RMC"][0]
+        gsa, _ = parsed["GSA"][0]
+        t = float(row["t_unix_s"])
+        assert float(gga2.timestamp.hour * 3600 + gga2.timestamp.minute * 60
+                     + gga2.timestamp.second + gga2.timestamp.microsecond / 1e6) == pytest.approx(
+                         t % 86400.0, abs=1e-3)
+        assert int(gga.quality) == int(row["quality"])
+        used = [int(p) for p in row["used_prns"].split()] if row["used_prns"] else []
+        gsa_prns = [int(getattr(gsa, f"svid_{i:02d}")) for i in range(1, 13)
+                    if getattr(gsa, f"svid_{i:02d}") not in ("", None)]
+        assert sorted(gsa_prns) == sorted(used)
+        gsv_prns = [int(getattr(m, f"svid_{k:02d}")) for m, _ in parsed["GSV"]
+                    for k in range(1, 5) if getattr(m, f"svid_{k:02d}", "") not in ("", None)]
+        assert len(gsv_prns) == int(row["sats_in_view"]) == int(gsa2_total(parsed))
+        assert set(used) <= set(gsv_prns)
+        if row["quality"] != "0":
+            n_fix += 1
+            assert int(gga.numSV) == int(row["sats_used"]) == len(used)
+            assert gga.lat == pytest.approx(float(row["lat_deg"]), abs=1e-4 / 60 * 1.01)
+            assert gga.lon == pytest.approx(float(row["lon_deg"]), abs=1e-4 / 60 * 1.01)
+            assert gga.alt == pytest.approx(float(row["alt_msl_m"]), abs=0.051)
+            assert gga.sep == pytest.approx(float(row["geoid_sep_m"]), abs=0.051)
+            assert gga.HDOP == pytest.approx(float(row["hdop"]), abs=0.0051)
+            assert float(gsa.PDOP) == pytest.approx(float(row["pdop"]), abs=0.0051)
+            assert rmc.status == "A"
+            assert rmc.spd == pytest.approx(float(row["speed_mps"]) * 3600 / 1852, abs=0.0051)
+        else:
+            assert rmc.status == "V"
+    assert n_fix > len(rows) // 2
+
+
+def gsa2_total(parsed) -> int:
+    """The satellites-in-view count every GSV sentence carries."""
+    totals = {int(m.numSV) for m, _ in parsed["GSV"]}
+    assert len(totals) == 1
+    return totals.pop()
+
+
+def test_replay_is_byte_identical_for_the_same_seed_and_differs_for_another(replayed, tmp_path):
+    poses, out, _ = replayed
+    again = tmp_path / "again.nmea"
+    assert main(["replay", str(poses), "--out", str(again), "--seed", "4"]) == 0
+    assert again.read_bytes() == out.read_bytes()
+    other = tmp_path / "other.nmea"
+    assert main(["replay", str(poses), "--out", str(other), "--seed", "5"]) == 0
+    assert other.read_bytes() != out.read_bytes()
+
+
+def test_replay_does_not_depend_on_the_chunk_size(replayed, tmp_path, monkeypatch):
+    poses, out, _ = replayed
+    monkeypatch.setattr(replay, "CHUNK_EPOCHS", 7)
+    small = tmp_path / "small.nmea"
+    assert main(["replay", str(poses), "--out", str(small), "--seed", "4"]) == 0
+    assert small.read_bytes() == out.read_bytes()
+
+
+def test_start_time_shifts_the_log(replayed, tmp_path):
+    poses, _, _ = replayed
+    fixes = tmp_path / "f.csv"
+    assert main(["replay", str(poses), "--out", str(tmp_path / "o.nmea"), "--fixes", str(fixes),
+                 "--start-time", "2017-03-28T15:00:00Z"]) == 0
+    rows = list(csv.DictReader(open(fixes)))
+    assert float(rows[0]["t_unix_s"]) == config.parse_time("2017-03-28T15:00:00Z")
+
+
+def test_sky_json_lists_states_and_plot_draws(tmp_path, capsys):
+    png = tmp_path / "sky.png"
+    assert main(["sky", "--time", "2017-03-28T14:52:48Z", "--at=-60,-80,55", "--json",
+                 "--plot", str(png)]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert rows and {r["state"] for r in rows} <= {"visible", "blocked", "below_mask"}
+    for r in rows:
+        assert set(r) == {"prn", "az_deg", "el_deg", "state", "cn0_dbhz"}
+        assert 0 <= r["el_deg"] <= 90 and 0 <= r["az_deg"] < 360
+        assert (r["cn0_dbhz"] is not None) == (r["state"] == "visible")
+        assert (r["state"] == "below_mask") == (r["el_deg"] < 5.0)
+    assert "blocked" in {r["state"] for r in rows}  # between the campus buildings
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sky_open_sky_blocks_nothing(capsys):
+    assert main(["sky", "--scene", "none", "--lla", "0,0,0", "--time", "2020-05-14T22:00:00Z",
+                 "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert "blocked" not in {r["state"] for r in rows} and len(rows) >= 6
+
+
+def test_precedence_defaults_profile_config_flags(tmp_path):
+    cfg_file = tmp_path / "c.toml"
+    cfg_file.write_text('profile = "usarsim"\nseed = 9\n[noise]\nmax_noise_m = 6.0\n'
+                        '[georef]\nlat_deg = 10.0\nlon_deg = 20.0\nalt_hae_m = 5.0\n')
+    cfg = config.resolve({"config": str(cfg_file)})
+    assert cfg.profile.name == "usarsim" and cfg.seed == 9
+    assert cfg.profile.noise.max_noise_m == 6.0 and cfg.profile.noise.min_noise_m == 2.0
+    assert cfg.origin == (10.0, 20.0, 5.0)
+    cfg = config.resolve({"config": str(cfg_file), "seed": 3, "profile": "ideal", "rate": 5.0,
+                          "origin": "1,2,3"})
+    assert cfg.seed == 3 and cfg.profile.name == "ideal" and cfg.profile.rate_hz == 5.0
+    assert cfg.profile.noise.max_noise_m == 6.0  # config still overrides the (new) profile
+    assert cfg.origin == (1.0, 2.0, 3.0)
+    assert config.resolve({}).profile.name == "holux-m1000"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "virtualgps", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "expect"),
+    [
+        ("bad.jsonl", '{"t": 1, "x": 1, "y": 2, "z": 3}\n{"t": 2, "x": 1, "y": "two", "z": 3}\n',
+         "bad.jsonl:2"),
+        ("bad.csv", "t,x,y\n1,2,3\n", "bad.csv"),
+    ],
+)
+def test_bad_pose_log_is_one_error_line_naming_file_and_line(tmp_path, name, content, expect):
+    p = tmp_path / name
+    p.write_text(content)
+    r = _cli("replay", str(p), "--out", str(tmp_path / "o.nmea"))
+    assert r.returncode != 0
+    lines = [ln for ln in r.stderr.splitlines() if "error" in ln]
+    assert len(lines) == 1 and expect in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_bad_tle_profile_and_config_are_clear_errors(tmp_path):
+    tle = tmp_path / "bad.tle"
+    tle.write_text("GPS X (PRN 1)\n1 24876U 97035A   17084.80454529  .00000006  00000-0  0000\n")
+    r = _cli("sky", "--tle", str(tle), "--time", "2017-03-26T00:00:00Z")
+    assert r.returncode != 0 and "bad.tle:2" in r.stderr and "Traceback" not in r.stderr
+    bad_cfg = tmp_path / "c.toml"
+    bad_cfg.write_text("[noise]\nmax_noise_m = 'loud'\n")
+    r = _cli("sky", "--config", str(bad_cfg))
+    assert r.returncode != 0 and "max_noise_m" in r.stderr
+    bad_cfg.write_text("[noise\n")
+    r = _cli("sky", "--config", str(bad_cfg))
+    assert r.returncode != 0 and "c.toml" in r.stderr and "line 1" in r.stderr
+    r = _cli("sky", "--profile", "no-such-profile")
+    assert r.returncode != 0 and "no-such-profile" in r.stderr
+
+
+def test_ideal_replay_reports_the_true_position(tmp_path):
+    poses = write_walk(tmp_path / "w.jsonl", n=40)
+    fixes = tmp_path / "f.csv"
+    assert main(["replay", str(poses), "--out", str(tmp_path / "o.nmea"), "--fixes", str(fixes),
+                 "--profile", "ideal"]) == 0
+    rows = [r for r in csv.DictReader(open(fixes)) if r["quality"] != "0"]
+    assert rows
+    for r in rows:
+        assert float(r["lat_deg"]) == pytest.approx(float(r["truth_lat_deg"]), abs=1e-9)
+        alt_hae = float(r["alt_msl_m"]) + float(r["geoid_sep_m"])
+        assert alt_hae == pytest.approx(float(r["truth_alt_hae_m"]), abs=1e-3)
+    assert np.isclose(float(rows[0]["speed_mps"]), 1.4)
