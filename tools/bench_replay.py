@@ -25,20 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps import config, nmea, pose
+from virtualgps import config, nmea
 from virtualgps.cli import main as cli_main
-from virtualgps.daemon import demo_track
+from virtualgps.daemon import LoopProvider, demo_lap
 from virtualgps.receiver import ReceiverState, simulate
 
 START_UNIX_S = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the Magdeburg waypoint logs
 
 
-def write_walk(path: Path, hours: float) -> pose.PoseTrack:
-    """The scene's demo loop for ``hours`` at 10 poses per second, as JSONL."""
+def write_walk(path: Path, hours: float) -> None:
+    """The scene's demo loop for ``hours`` at 1 pose per second, as JSONL."""
     scene, _, _ = config.load_scene_for(config.resolve({}))
-    track = demo_track(scene.demo_waypoints_enu_m, scene.demo_speed_mps, START_UNIX_S, hours * 3600)
-    t = np.arange(track.t_unix_s[0], track.t_unix_s[0] + hours * 3600 + 1e-9, 0.1)
-    pos, _, _ = pose.interpolate(track, t, 10.0)
+    walk = LoopProvider(demo_lap(scene.demo_waypoints_enu_m, scene.demo_speed_mps),
+                        START_UNIX_S, 2.0)
+    t = START_UNIX_S + np.arange(0.0, hours * 3600 + 1e-9, 1.0)  # poses at 1 Hz
+    pos, _, _ = walk.pose_at(t)
     with open(path, "w") as f:
         for ti, p in zip(t.tolist(), pos.tolist(), strict=True):
             f.write(
@@ -52,7 +53,6 @@ def write_walk(path: Path, hours: float) -> pose.PoseTrack:
                 )
                 + "\n"
             )
-    return track
 
 
 def bench_replay(poses: Path, out: Path, profile: str) -> tuple[float, int]:
@@ -79,16 +79,15 @@ def bench_live(profile: str, n_epochs: int) -> float:
     eph, _ = config.load_ephemeris(cfg, tle)
     rx = config.make_receiver(cfg, scene, georef, eph, START_UNIX_S)
     fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
-    track = demo_track(
-        scene.demo_waypoints_enu_m, scene.demo_speed_mps, START_UNIX_S, n_epochs + 10
-    )
+    walk = LoopProvider(demo_lap(scene.demo_waypoints_enu_m, scene.demo_speed_mps),
+                        START_UNIX_S, 2.0)
     rng = np.random.default_rng(0)
     state = ReceiverState()
     sink = bytearray()
     c0 = time.process_time()
     for k in range(n_epochs):
         t = np.array([START_UNIX_S + k])
-        p, v, ok = pose.interpolate(track, t, 2.0)
+        p, v, ok = walk.pose_at(t)
         fixes, state = simulate(rx, t, p, v, ok, state, rng)
         sink += nmea.epoch_sentences(fixes, 0, fmt)
     return (time.process_time() - c0) / n_epochs

@@ -150,7 +150,7 @@ def _status_text(fixes, stats, device) -> str:
     else:
         where, fix = "", "no fix"
     dropped = getattr(device, "dropped_epochs", 0)
-    extra = f"  (dropped {dropped} unread epochs)" if dropped else ""
+    extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
     return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
 
 
@@ -196,10 +196,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if waypoints is None or len(waypoints) < 2:
             # Open sky or a scene without [demo]: a 40 m square around the origin, antenna 1.5 m up.
             waypoints = np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5], [0, 40, 1.5]], float)
-        track = daemon.demo_track(
-            np.asarray(waypoints, float), float(speed), t0, args.duration or 7 * 86400.0
-        )
-        provider = daemon.TrackProvider(track, t0, prof.pose_timeout_s)
+        lap = daemon.demo_lap(np.asarray(waypoints, float), float(speed))
+        provider = daemon.LoopProvider(lap, t0, prof.pose_timeout_s)
     elif spec.startswith(("udp://", "tcp://")) or spec == "-":
         provider = daemon.LiveProvider(
             transport.open_pose_source(spec), georef, clock, prof.pose_timeout_s

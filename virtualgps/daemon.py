@@ -81,7 +81,7 @@ class TrackProvider:
 
     def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
         self.track = track
-        self.shift_s = t0_unix_s - float(track.t_unix_s[0])
+        self.shift_s = t0_unix_s - float(track.t_unix_s[0]) if len(track) else 0.0
         self.max_gap_s = max_gap_s
 
     def fileno_list(self) -> list[int]:
@@ -97,34 +97,42 @@ class TrackProvider:
         return None
 
 
-def demo_track(
-    waypoints_enu_m: np.ndarray, speed_mps: float, t0_unix_s: float, duration_s: float
-) -> pose.PoseTrack:
-    """A scripted walk: the closed waypoint loop at constant speed, repeated for ``duration_s``.
+def demo_lap(waypoints_enu_m: np.ndarray, speed_mps: float, step_s: float = 0.5) -> pose.PoseTrack:
+    """One lap of a scripted walk: the closed waypoint loop at constant speed, sampled densely.
 
     Parameters
     ----------
     waypoints_enu_m : (n, 3) metres, scene ENU (antenna positions)
     speed_mps : walking speed
-    t0_unix_s : time of the first waypoint
-    duration_s : how long to walk (the loop repeats)
+    step_s : sampling interval of the returned track
 
     Returns
     -------
-    track : PoseTrack in the scene ENU frame, one pose per waypoint passage, with velocities
+    lap : PoseTrack in the scene ENU frame, times from 0 to the lap time, with velocities
     """
     pts = np.asarray(waypoints_enu_m, dtype=float)
     loop = np.vstack([pts, pts[:1]])
-    seg = np.linalg.norm(np.diff(loop, axis=0), axis=1)
-    lap_s = float(seg.sum()) / speed_mps
-    n_laps = max(1, math.ceil(duration_s / lap_s))
-    leg_t = np.concatenate([[0.0], np.cumsum(seg) / speed_mps])  # (n + 1,)
-    t = (leg_t[None, :-1] + lap_s * np.arange(n_laps)[:, None]).ravel()
-    t = np.append(t, n_laps * lap_s)
-    xyz = np.vstack([np.tile(pts, (n_laps, 1)), pts[:1]])
-    return pose.PoseTrack(
-        t_unix_s=t0_unix_s + t, frame="enu", xyz=xyz, vel_enu_mps=np.full_like(xyz, np.nan)
-    )
+    seg_m = np.linalg.norm(np.diff(loop, axis=0), axis=1)
+    leg_t = np.concatenate([[0.0], np.cumsum(seg_m) / speed_mps])  # (n + 1,) arrival times
+    t = np.union1d(np.arange(0.0, leg_t[-1], step_s), leg_t)
+    k = np.clip(np.searchsorted(leg_t, t, side="right") - 1, 0, len(seg_m) - 1)
+    w = ((t - leg_t[k]) / (leg_t[k + 1] - leg_t[k]))[:, None]
+    xyz = loop[k] + w * (loop[k + 1] - loop[k])
+    vel = (loop[k + 1] - loop[k]) / (leg_t[k + 1] - leg_t[k])[:, None]
+    return pose.PoseTrack(t_unix_s=t, frame="enu", xyz=xyz, vel_enu_mps=vel)
+
+
+class LoopProvider(TrackProvider):
+    """A lap (times from 0) walked again and again from ``t0_unix_s``: the ``demo`` source."""
+
+    def __init__(self, lap: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
+        super().__init__(lap, 0.0, max_gap_s)
+        self.t0_unix_s = t0_unix_s
+        self.lap_s = float(lap.t_unix_s[-1])
+
+    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t_lap = (np.asarray(t_unix_s, dtype=float) - self.t0_unix_s) % self.lap_s
+        return pose.interpolate(self.track, t_lap, self.max_gap_s)
 
 
 class LiveProvider:
