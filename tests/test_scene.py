@@ -1,0 +1,154 @@
+"""Scenes: loading with object names and classes, and line-of-sight queries against closed-form
+geometry (the test scene's wall) and against trimesh's independent pure-numpy ray backend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from virtualgps import geodesy
+from virtualgps.config import BUNDLED_SCENES_DIR
+from virtualgps.exceptions import InputFileError
+from virtualgps.scene import CLASS_FOLIAGE, CLASS_IGNORE, CLASS_OCCLUDER, Scene, load_scene
+
+TEST_SCENE = BUNDLED_SCENES_DIR / "test-wall"
+# Wall1 of the test scene (tools/make_test_scene.py): east -20..20, north 30..30.5, up 0..12.
+WALL_E = (-20.0, 20.0)
+WALL_N = 30.0
+WALL_H = 12.0
+
+
+@pytest.fixture(scope="module")
+def wall_scene() -> Scene:
+    return load_scene(TEST_SCENE)
+
+
+@pytest.fixture(scope="module")
+def wall_scene_numpy() -> Scene:
+    return load_scene(TEST_SCENE, backend="numpy")
+
+
+def test_analytic_wall_blocks_exactly_below_its_edge(wall_scene):
+    """A wall of height h at distance d blocks exactly the elevations below atan(h/d)."""
+    origin = np.array([3.0, -5.0, 1.5])  # not the scene origin
+    d = WALL_N - origin[1]
+    h = WALL_H - origin[2]
+    edge_deg = np.degrees(np.arctan2(h, d))  # straight north (az 0): the wall's nearest point
+    el = np.array([edge_deg - 0.05, edge_deg + 0.05, 1.0, 60.0])
+    dirs = geodesy.azel_to_enu_unit(np.zeros(4), el)
+    blocked = wall_scene.blocked(np.broadcast_to(origin, (4, 3)), dirs)
+    assert blocked.tolist() == [True, False, True, False]
+
+    # In other azimuths inside the span the edge is lower: atan(h / (d / cos(az))).
+    az = np.array([-25.0, 10.0, 25.0])
+    edge = np.degrees(np.arctan2(h, d / np.cos(np.radians(az))))
+    for sign, expect in ((-0.05, True), (+0.05, False)):
+        dirs = geodesy.azel_to_enu_unit(az, edge + sign)
+        assert wall_scene.blocked(np.broadcast_to(origin, (3, 3)), dirs).tolist() == [expect] * 3
+
+    # Outside the wall's azimuth span nothing blocks, even at low elevation.
+    span = np.degrees(np.arctan2(np.array(WALL_E) - origin[0], d))
+    az_out = np.array([span[0] - 1.0, span[1] + 1.0])
+    dirs = geodesy.azel_to_enu_unit(az_out, np.full(2, 2.0))
+    assert not wall_scene.blocked(np.broadcast_to(origin, (2, 3)), dirs).any()
+    az_in = np.array([span[0] + 1.0, span[1] - 1.0])
+    dirs = geodesy.azel_to_enu_unit(az_in, np.full(2, 2.0))
+    assert wall_scene.blocked(np.broadcast_to(origin, (2, 3)), dirs).all()
+
+
+def test_hit_distance_is_the_distance_to_the_wall(wall_scene):
+    origin = np.array([[0.0, 0.0, 2.0]])
+    dist = wall_scene.hit_distance_m(origin, np.array([[0.0, 1.0, 0.0]]))
+    assert dist[0] == pytest.approx(WALL_N, abs=1e-3)
+    assert np.isinf(wall_scene.hit_distance_m(origin, np.array([[0.0, -1.0, 0.0]]))[0])
+
+
+def test_embree_and_numpy_backends_agree(wall_scene, wall_scene_numpy):
+    rng = np.random.default_rng(2)
+    n = 3000
+    origins = np.c_[rng.uniform(-40, 50, n), rng.uniform(-40, 40, n), rng.uniform(0.5, 10, n)]
+    dirs = geodesy.azel_to_enu_unit(rng.uniform(0, 360, n), rng.uniform(-30, 90, n))
+    for cls in ("occluder", "foliage"):
+        a = wall_scene.blocked(origins, dirs, cls=cls)
+        b = wall_scene_numpy.blocked(origins, dirs, cls=cls)
+        assert a.any() and (a == b).mean() > 0.999, cls  # grazing rays may differ in float32
+    da = wall_scene.hit_distance_m(origins, dirs)
+    db = wall_scene_numpy.hit_distance_m(origins, dirs)
+    both = np.isfinite(da) & np.isfinite(db)
+    np.testing.assert_allclose(da[both], db[both], atol=1e-3)
+
+
+def test_ray_starting_on_a_surface_does_not_hit_it(wall_scene):
+    # An antenna standing on the wall's top, looking up and sideways: only the nudge keeps the
+    # top face from blocking every ray.
+    top = np.array([[0.0, 30.25, WALL_H]])
+    dirs = geodesy.azel_to_enu_unit(np.array([90.0, 0.0, 200.0]), np.array([80.0, 5.0, 1.0]))
+    assert not wall_scene.blocked(np.repeat(top, 3, axis=0), dirs).any()
+
+
+def test_classes_foliage_and_ignore(wall_scene):
+    names = dict(zip(wall_scene.object_names, wall_scene.object_class.tolist(), strict=True))
+    assert names["Wall1"] == CLASS_OCCLUDER and names["Kiosk1"] == CLASS_OCCLUDER  # default
+    assert names["Tree1"] == CLASS_FOLIAGE
+    assert names["Road1"] == CLASS_IGNORE and names["Ground"] == CLASS_IGNORE
+    # Through the tree canopy (east 20..26, north -20..-14, up 3..9): foliage, not occluder.
+    o = np.array([[23.0, -30.0, 6.0]])
+    north = np.array([[0.0, 1.0, 0.0]])
+    assert wall_scene.blocked(o, north, cls="foliage")[0]
+    assert not wall_scene.blocked(o, north, cls="occluder")[0]
+    # Along the raised road slab (ignore) nothing blocks.
+    o = np.array([[-40.0, -27.5, 1.0]])
+    assert not wall_scene.blocked(o, np.array([[1.0, 0.0, 0.0]]))[0]
+
+
+def test_magdeburg_objects_and_classes(shared_data):
+    scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
+    names = np.array(scene.object_names)
+    cls = scene.object_class
+    is_building = np.char.startswith(names, "Building") & ~np.char.startswith(
+        names, "BuildingEntrance")
+    # SOURCES.md: 40 buildings, 138 trees, 42 benches, 21 street lamps.
+    assert len(set(names[is_building])) <= 40 <= is_building.sum()
+    assert np.char.startswith(names, "Tree").sum() == 138
+    assert (cls[np.char.startswith(names, "Tree")] == CLASS_FOLIAGE).all()
+    assert (cls[is_building] == CLASS_OCCLUDER).all()
+    for ignored in ("Road", "Rail", "Tunnel", "SurfaceArea"):
+        assert (cls[np.char.startswith(names, ignored)] == CLASS_IGNORE).all(), ignored
+    # The georeference: MSL 0 becomes the EGM96 geoid height above the ellipsoid.
+    assert scene.alt_hae_m == pytest.approx(float(geodesy.geoid_sep_m(scene.lat_deg,
+                                                                       scene.lon_deg)))
+    # Demo waypoints are outside buildings: an upward ray from below the terrain hits no roof.
+    w = scene.demo_waypoints_enu_m
+    below = np.c_[w[:, :2], np.full(len(w), 40.0)]
+    up = np.tile([0.0, 0.0, 1.0], (len(w), 1))
+    assert not np.isfinite(scene.hit_distance_m(below, up, cls="occluder")).any()
+    # Ground 1.5 m below each waypoint.
+    np.testing.assert_allclose(scene.ground_height_m(w[:, 0], w[:, 1]), w[:, 2] - 1.5, atol=0.05)
+
+
+def test_open_sky_blocks_nothing():
+    sky = Scene.open_sky(52.0, 11.0, 100.0)
+    dirs = geodesy.azel_to_enu_unit(np.arange(0, 360, 30.0), np.full(12, 1.0))
+    assert not sky.blocked(np.zeros((12, 3)), dirs).any()
+
+
+@pytest.mark.parametrize(
+    ("text", "expect"),
+    [
+        ('mesh = "nope.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n',
+         "nope.obj"),
+        ('mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
+         '[axes]\neast = "+x"\nnorth = "+x"\nup = "+z"\n', "axes"),
+        ('mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
+         '[classes]\nshrubs = ["Bush"]\n', "shrubs"),
+        ('mesh = "m.obj"\n[georef\n', "line 2"),
+    ],
+)
+def test_bad_scene_toml_names_the_file(tmp_path, text, expect):
+    (tmp_path / "m.obj").write_text("o Wall1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "scene.toml").write_text(text)
+    with pytest.raises(InputFileError) as err:
+        load_scene(tmp_path)
+    msg = str(err.value)
+    assert "scene.toml" in msg or "nope.obj" in msg
+    assert expect in msg
