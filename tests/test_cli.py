@@ -34,7 +34,8 @@ def replayed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
     poses = write_walk(tmp / "walk.jsonl")
     out, fixes = tmp / "out.nmea", tmp / "fixes.csv"
-    assert main(["replay", str(poses), "--out", str(out), "--fixes", str(fixes), "--seed", "4"]) == 0
+    args = ["replay", str(poses), "--out", str(out), "--fixes", str(fixes), "--seed", "4"]
+    assert main(args) == 0
     return poses, out, fixes
 
 

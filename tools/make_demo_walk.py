@@ -2,7 +2,7 @@
 that stay outside buildings, antenna 1.5 m above the ground. Prints the ``[demo]`` table for
 ``scenes/magdeburg-campus/scene.toml``.
 
-Usage: python tools/make_demo_walk.py [/path/to/shared/data/magdeburg-campus/nmea/Wegpunkte/staticmap.txt]
+Usage: python tools/make_demo_walk.py [PATH/TO/Wegpunkte/staticmap.txt]
 
 The markers (18 map pins; the logs stand at 5-18) come from ../shared/data (xaedes/GNSS-Shadowing,
 MIT). Buildings are found by casting rays upward from below the terrain: a hit on an occluder
@@ -34,7 +34,8 @@ ANTENNA_M = 1.5
 def main() -> None:
     scene = load_scene(REPO / "scenes/magdeburg-campus")
     url = MARKERS.read_text()
-    pins = [tuple(map(float, m.split(","))) for m in url.split("markers=")[1].strip().strip("|").split("|")]
+    markers = url.split("markers=")[1].strip().strip("|").split("|")
+    pins = [tuple(map(float, m.split(","))) for m in markers]
     ll = np.array(pins)[4:18]  # markers 5-18: where the waypoint logs were recorded
     enu = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(ll[:, 0], ll[:, 1], scene.alt_hae_m),
                               scene.lat_deg, scene.lon_deg, scene.alt_hae_m)[:, :2]

@@ -102,7 +102,25 @@ _TCP_MAX_CLIENTS = 64
 # --------------------------------------------------------------------------------------------
 
 
-class OutputDevice(abc.ABC):
+class _Closing:
+    """Context-manager support for anything with ``close()``."""
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class OutputDevice(_Closing, abc.ABC):
     """Where NMEA bytes go: one epoch at a time, without ever making the caller wait.
 
     Attributes
@@ -159,17 +177,6 @@ class OutputDevice(abc.ABC):
     @abc.abstractmethod
     def close(self) -> None:
         """Release the device; calling it again does nothing."""
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 @dataclass
@@ -1047,7 +1054,7 @@ class FileSink(OutputDevice):
 # --------------------------------------------------------------------------------------------
 
 
-class PoseSource(abc.ABC):
+class PoseSource(_Closing, abc.ABC):
     """Raw pose messages from the network or stdin, read without waiting.
 
     Attributes
@@ -1092,17 +1099,6 @@ class PoseSource(abc.ABC):
     @abc.abstractmethod
     def close(self) -> None:
         """Release sockets; calling it again does nothing."""
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class _LineSplitter:
