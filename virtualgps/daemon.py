@@ -108,7 +108,8 @@ def demo_lap(waypoints_enu_m: np.ndarray, speed_mps: float, step_s: float = 0.5)
 
     Returns
     -------
-    lap : PoseTrack in the scene ENU frame, times from 0 to the lap time, with velocities
+    lap : PoseTrack in the scene ENU frame, times from 0 to the lap time; velocities are left
+        to finite differences, which are exact since every corner is a sample
     """
     pts = np.asarray(waypoints_enu_m, dtype=float)
     loop = np.vstack([pts, pts[:1]])
@@ -118,8 +119,7 @@ def demo_lap(waypoints_enu_m: np.ndarray, speed_mps: float, step_s: float = 0.5)
     k = np.clip(np.searchsorted(leg_t, t, side="right") - 1, 0, len(seg_m) - 1)
     w = ((t - leg_t[k]) / (leg_t[k + 1] - leg_t[k]))[:, None]
     xyz = loop[k] + w * (loop[k + 1] - loop[k])
-    vel = (loop[k + 1] - loop[k]) / (leg_t[k + 1] - leg_t[k])[:, None]
-    return pose.PoseTrack(t_unix_s=t, frame="enu", xyz=xyz, vel_enu_mps=vel)
+    return pose.PoseTrack(t_unix_s=t, frame="enu", xyz=xyz, vel_enu_mps=np.full_like(xyz, np.nan))
 
 
 class LoopProvider(TrackProvider):

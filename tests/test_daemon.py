@@ -1,0 +1,101 @@
+"""The live loop in-process: epochs on whole multiples of the period, no fix before the first pose
+and after the pose timeout, malformed messages counted and skipped, the demo loop."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from virtualgps import daemon, nmea
+from virtualgps.config import BUNDLED_SCENES_DIR, make_receiver, resolve
+from virtualgps.ephemeris import load_tle
+from virtualgps.receiver import Georef
+from virtualgps.scene import load_scene
+
+START = 1490712768.0  # 2017-03-28T14:52:48Z
+
+
+class FakeSource:
+    """Pose messages handed out at chosen simulated times (a stand-in for UDP)."""
+
+    def __init__(self, clock: daemon.SimClock, schedule: list[tuple[float, bytes]]) -> None:
+        self.clock, self.schedule = clock, sorted(schedule)
+
+    def fileno_list(self) -> list[int]:
+        return []
+
+    def poll(self):
+        now = self.clock.now_unix_s()
+        ready = [(m, now - self.clock.offset_s) for t, m in self.schedule if t <= now]
+        self.schedule = [(t, m) for t, m in self.schedule if t > now]
+        return ready
+
+    def close(self) -> None:
+        pass
+
+
+class Sink:
+    def __init__(self) -> None:
+        self.epochs: list[bytes] = []
+
+    def write_epoch(self, data: bytes) -> None:
+        self.epochs.append(data)
+
+    def read_available(self) -> bytes:
+        return b""
+
+
+@pytest.fixture(scope="module")
+def receiver():
+    cfg = resolve({"rate": 10.0, "scene": "none"})
+    eph = load_tle(BUNDLED_SCENES_DIR.parent / "ephemeris" / "gps-ops-2017-03-28.tle")
+    return cfg, make_receiver(cfg, None, Georef(52.14, 11.64, 100.0), eph, START)
+
+
+def test_live_loop_fix_rules_and_epoch_times(receiver):
+    cfg, rx = receiver
+    clock = daemon.SimClock(START)
+    t0 = clock.now_unix_s()
+    good = json.dumps({"x": 0.0, "y": 0.0, "z": 1.5}).encode()  # t absent: arrival time
+    schedule = [(t0 + 0.5, good), (t0 + 0.55, b"{not json"), (t0 + 0.6, b'{"x": 1}'),
+                (t0 + 0.7, good)]
+    provider = daemon.LiveProvider(FakeSource(clock, schedule), rx.georef, clock,
+                                   cfg.profile.pose_timeout_s)
+    sink = Sink()
+    fixes_seen: list[tuple[float, int]] = []
+    stop = threading.Event()
+    stats = daemon.run_daemon(
+        rx, provider, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea), clock,
+        np.random.default_rng(0), stop,
+        on_epoch=lambda f, s: fixes_seen.append((float(f.t_unix_s[0]), int(f.quality[0]))),
+        max_epochs=35,
+    )
+    t = np.array([t for t, _ in fixes_seen])
+    q = np.array([q for _, q in fixes_seen])
+    np.testing.assert_allclose(t * 10, np.round(t * 10), atol=1e-6)  # multiples of 0.1 s
+    np.testing.assert_allclose(np.diff(t), 0.1, atol=1e-6)
+    age = t - (t0 + 0.7)  # the last pose
+    assert (q[t < t0 + 0.5] == 0).all()  # no pose yet
+    assert (q[(age > 0.05) & (age < 2.0 - 0.05)] == 1).all()  # held within the 2 s timeout
+    assert (q[age > 2.0 + 0.05] == 0).all()  # older than the timeout: no fix
+    assert dict(provider.bad) == {"not-json": 1, "no-position": 1}
+    assert stats.epochs == 35 and len(sink.epochs) == 35
+    assert all(e.startswith(b"$GPGGA") and e.endswith(b"\r\n") for e in sink.epochs)
+
+
+def test_demo_lap_walks_the_loop_at_the_set_speed():
+    scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
+    lap = daemon.demo_lap(scene.demo_waypoints_enu_m, 1.4)
+    walk = daemon.LoopProvider(lap, START, 2.0)
+    t = START + np.arange(0.0, 3 * walk.lap_s, 7.3)
+    pos, vel, ok = walk.pose_at(t)
+    assert ok.all()
+    np.testing.assert_allclose(np.linalg.norm(vel, axis=1), 1.4, rtol=1e-9)
+    # Periodic, and starts at the first waypoint.
+    p2, _, _ = walk.pose_at(t + walk.lap_s)
+    np.testing.assert_allclose(p2, pos, atol=1e-6)
+    p0, _, _ = walk.pose_at(np.array([START]))
+    np.testing.assert_allclose(p0[0], scene.demo_waypoints_enu_m[0], atol=1e-9)
