@@ -205,7 +205,12 @@ def test_bad_tle_profile_and_config_are_clear_errors(tmp_path):
     bad_cfg = tmp_path / "c.toml"
     bad_cfg.write_text("[noise]\nmax_noise_m = 'loud'\n")
     r = _cli("sky", "--config", str(bad_cfg))
-    assert r.returncode != 0 and "max_noise_m" in r.stderr
+    assert r.returncode != 0 and "c.toml:2" in r.stderr and "max_noise_m" in r.stderr
+    bad_cfg.write_text("seed = 1\n[nmea]\ntalker = 5\n")
+    r = _cli("sky", "--config", str(bad_cfg))
+    assert r.returncode != 0 and "c.toml:3" in r.stderr and "talker" in r.stderr
+    r = _cli("sky", "--rate", "50")
+    assert r.returncode != 0 and "rate" in r.stderr and "Traceback" not in r.stderr
     bad_cfg.write_text("[noise\n")
     r = _cli("sky", "--config", str(bad_cfg))
     assert r.returncode != 0 and "c.toml" in r.stderr and "line 1" in r.stderr

@@ -108,13 +108,17 @@ def resolve(flags: dict[str, Any]) -> RunConfig:
         file_cfg = read_toml(Path(flags["config"]))
     run = {k: v for k, v in file_cfg.items() if k in RUN_KEYS}
     profile_over = {k: v for k, v in file_cfg.items() if k not in RUN_KEYS}
+    if "rate" in run:
+        profile_over.setdefault("rate_hz", run["rate"])
+    flag_over = {}
     for key in ("rate", "baud"):  # flags of the run that are profile settings
         if flags.get(key) is not None:
-            profile_over["rate_hz" if key == "rate" else key] = flags[key]
-    if "rate" in run and flags.get("rate") is None:
-        profile_over.setdefault("rate_hz", run["rate"])
+            flag_over["rate_hz" if key == "rate" else key] = flags[key]
     profile = load_profile(
-        flags.get("profile") or run.get("profile") or DEFAULT_PROFILE, profile_over
+        flags.get("profile") or run.get("profile") or DEFAULT_PROFILE,
+        profile_over,
+        flags.get("config"),
+        flag_over,
     )
 
     def pick(key: str) -> Any:

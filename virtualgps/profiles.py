@@ -8,13 +8,14 @@ table, which overrides the profile's (e.g. ``[noise] max_noise_m = 8.0``).
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from virtualgps.exceptions import ConfigError, InputFileError
+from virtualgps.exceptions import ConfigError, InputFileError, VirtualGPSError
 
 BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal")
 DEFAULT_PROFILE = "holux-m1000"
@@ -99,6 +100,46 @@ class Profile:
     source: str = ""
 
 
+class SettingError(ConfigError):
+    """A bad setting; ``section`` and ``key`` locate it in its TOML file ("" = top level)."""
+
+    def __init__(self, section: str, key: str | None, message: str) -> None:
+        super().__init__(message)
+        self.section, self.key = section, key
+
+
+def toml_key_line(text: str, section: str, key: str | None) -> int | None:
+    """1-based line of ``key`` in ``[section]`` of a TOML text (of the table header when ``key``
+    is None), or None. A plain scan, enough to point a user at a bad setting.
+
+    Parameters
+    ----------
+    text : the TOML text
+    section : table name ("" for the top level)
+    key : the key, or None for the table header
+
+    Returns
+    -------
+    line : int or None
+    """
+    current = ""
+    for i, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        header = re.match(r"\[\s*([^\]]+?)\s*\]", stripped)
+        if header:
+            current = header.group(1).strip('"')
+            if (key is None and current == section) or (section == "" and current == key):
+                return i  # the table itself ([section], or a top-level key that is a table)
+            continue
+        if (
+            key is not None
+            and current == section
+            and re.match(rf'"?{re.escape(key)}"?\s*[=.]', stripped)
+        ):
+            return i
+    return None
+
+
 _CHOICES = {
     ("", "georef"): ("wgs84", "flat_earth"),
     ("sky", "foliage"): ("block", "ignore"),
@@ -176,35 +217,36 @@ def load_profile_dict(name_or_path: str) -> tuple[dict[str, Any], str]:
     return read_toml(path), str(path)
 
 
-def _float(value: Any, key: str) -> float:
+def _float(value: Any, section: str, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{key} must be a number, got {value!r}")
+        name = f"{section}.{key}" if section else key
+        raise SettingError(section, key, f"{name} must be a number, got {value!r}")
     return float(value)
 
 
-def _build_table(cls: type, table: dict[str, Any], prefix: str, source: str) -> Any:
+def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
     fields = cls.__dataclass_fields__
     kwargs: dict[str, Any] = {}
     for key, value in table.items():
         full = f"{prefix}.{key}"
         if key not in fields:
-            raise ConfigError(
-                f"{source}: unknown setting {full!r}; known in [{prefix}]: {', '.join(fields)}"
+            raise SettingError(
+                prefix, key, f"unknown setting {full!r}; known in [{prefix}]: {', '.join(fields)}"
             )
         default = fields[key].default
         if isinstance(default, float):
-            value = _float(value, full)
+            value = _float(value, prefix, key)
         elif isinstance(default, int):
             if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{source}: {full} must be an integer, got {value!r}")
+                raise SettingError(prefix, key, f"{full} must be an integer, got {value!r}")
         choices = _CHOICES.get((prefix, key))
         if choices and value not in choices:
-            raise ConfigError(f"{source}: {full} must be one of {choices}, got {value!r}")
+            raise SettingError(prefix, key, f"{full} must be one of {choices}, got {value!r}")
         kwargs[key] = value
     return cls(**kwargs)
 
 
-def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:
+def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  # noqa: C901
     """Validate a profile table and build the :class:`Profile`.
 
     Parameters
@@ -225,61 +267,121 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:
     for key, value in data.items():
         if key in _TABLES:
             if not isinstance(value, dict):
-                raise ConfigError(f"{source}: [{key}] must be a table")
-            kwargs[key] = _build_table(_TABLES[key], value, key, source)
+                raise SettingError("", key, f"[{key}] must be a table")
+            kwargs[key] = _build_table(_TABLES[key], value, key)
         elif key == "nmea":
             if not isinstance(value, dict):
-                raise ConfigError(f"{source}: [nmea] must be a table")
+                raise SettingError("", key, "[nmea] must be a table")
+            from virtualgps.nmea import NmeaFormat
+
+            try:
+                NmeaFormat.from_dict(value)
+            except ConfigError as exc:
+                nmea_key = str(exc).split(":", 1)[0].removeprefix("nmea.")
+                raise SettingError(
+                    "nmea", nmea_key if nmea_key in value else None, str(exc)
+                ) from None
             kwargs[key] = dict(value)
         elif key in top and key != "source":
             if key in ("rate_hz", "pose_timeout_s"):
-                value = _float(value, key)
+                value = _float(value, "", key)
             elif key == "baud" and (isinstance(value, bool) or not isinstance(value, int)):
-                raise ConfigError(f"{source}: baud must be an integer, got {value!r}")
+                raise SettingError("", key, f"baud must be an integer, got {value!r}")
             choices = _CHOICES.get(("", key))
             if choices and value not in choices:
-                raise ConfigError(f"{source}: {key} must be one of {choices}, got {value!r}")
+                raise SettingError("", key, f"{key} must be one of {choices}, got {value!r}")
             kwargs[key] = value
         else:
-            raise ConfigError(
-                f"{source}: unknown profile setting {key!r}; known: "
-                f"{', '.join(k for k in top if k != 'source')}"
+            raise SettingError(
+                "",
+                key,
+                f"unknown profile setting {key!r}; known: "
+                f"{', '.join(k for k in top if k != 'source')}",
             )
     if "name" not in kwargs:
-        raise ConfigError(f"{source}: a profile needs a name")
+        raise SettingError("", None, "a profile needs a name")
     prof = Profile(**kwargs)
     if not 0.0 < prof.rate_hz <= 20.0:
-        raise ConfigError(f"{source}: rate_hz must be in (0, 20], got {prof.rate_hz}")
+        raise SettingError("", "rate_hz", f"rate_hz must be in (0, 20], got {prof.rate_hz}")
     if prof.baud < 300:
-        raise ConfigError(f"{source}: baud must be at least 300, got {prof.baud}")
+        raise SettingError("", "baud", f"baud must be at least 300, got {prof.baud}")
     if prof.pose_timeout_s <= 0:
-        raise ConfigError(f"{source}: pose_timeout_s must be positive")
+        raise SettingError("", "pose_timeout_s", "pose_timeout_s must be positive")
     if not -10.0 <= prof.sky.elevation_mask_deg < 90.0:
-        raise ConfigError(f"{source}: sky.elevation_mask_deg must be in [-10, 90)")
+        raise SettingError(
+            "sky", "elevation_mask_deg", "sky.elevation_mask_deg must be in [-10, 90)"
+        )
     if not 4 <= prof.sky.max_channels <= 12:
-        raise ConfigError(f"{source}: sky.max_channels must be in [4, 12]")
+        raise SettingError("sky", "max_channels", "sky.max_channels must be in [4, 12]")
     if prof.noise.min_noise_m < 0 or prof.noise.max_noise_m < prof.noise.min_noise_m:
-        raise ConfigError(
-            f"{source}: need 0 <= noise.min_noise_m <= noise.max_noise_m, got "
-            f"{prof.noise.min_noise_m} and {prof.noise.max_noise_m}"
+        raise SettingError(
+            "noise",
+            "min_noise_m",
+            "need 0 <= noise.min_noise_m <= noise.max_noise_m, got "
+            f"{prof.noise.min_noise_m} and {prof.noise.max_noise_m}",
         )
     return prof
 
 
-def load_profile(name_or_path: str, overrides: dict[str, Any] | None = None) -> Profile:
+def _in_file(exc: SettingError, path: str | Path | None) -> VirtualGPSError:
+    """Point a setting error at its file and line (or keep it as is without a file)."""
+    if path is None:
+        return exc
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        text = ""
+    line = toml_key_line(text, exc.section, exc.key) or toml_key_line(text, exc.section, None)
+    return InputFileError(path, str(exc), line)
+
+
+def _has(table: dict[str, Any], section: str, key: str | None) -> bool:
+    where = table.get(section) if section else table
+    if not isinstance(where, dict):
+        return False
+    return key is None or key in where
+
+
+def load_profile(
+    name_or_path: str,
+    overrides: dict[str, Any] | None = None,
+    overrides_path: str | Path | None = None,
+    flag_overrides: dict[str, Any] | None = None,
+) -> Profile:
     """Load a profile and apply config-file overrides (built-in defaults < profile < config).
 
     Parameters
     ----------
     name_or_path : a built-in name (``holux-m1000``, ``usarsim``, ``ideal``) or a TOML path
     overrides : profile keys/tables from a config file, applied on top
+    overrides_path : the config file they came from (named, with the line, in errors)
+    flag_overrides : profile keys set by command-line flags, applied last
 
     Returns
     -------
     profile : Profile
+
+    Raises
+    ------
+    InputFileError : a bad setting, naming the file (profile or config) and its line
     """
     data, source = load_profile_dict(name_or_path)
+    try:
+        prof = build_profile(data, source)
+    except SettingError as exc:
+        raise _in_file(exc, source) from None
     if overrides:
         data = merge(data, overrides)
-        source = f"{source} (+ config)"
-    return build_profile(data, source)
+        source = f"{source} + {overrides_path or 'config'}"
+        try:
+            prof = build_profile(data, source)
+        except SettingError as exc:
+            # The profile alone was valid: the setting at fault comes from the overrides.
+            blame = overrides_path if _has(overrides, exc.section, exc.key) else source
+            raise _in_file(exc, blame) from None
+    if flag_overrides:
+        try:
+            prof = build_profile(merge(data, flag_overrides), f"{source} + flags")
+        except SettingError as exc:
+            raise ConfigError(f"command line: {exc}") from None
+    return prof

@@ -66,6 +66,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from virtualgps.exceptions import InputFileError
 from virtualgps.geodesy import geoid_sep_m
+from virtualgps.profiles import toml_key_line
 
 F64 = NDArray[np.float64]
 
@@ -538,8 +539,7 @@ class _SceneToml:
     """Typed access to a parsed scene.toml with errors that name the file, line and key."""
 
     def __init__(self, path: Path, text: str, doc: dict[str, Any]) -> None:
-        self.path, self.doc = path, doc
-        self.lines = text.splitlines()
+        self.path, self.doc, self.text = path, doc, text
         for section, allowed in _KEYS.items():
             table = doc if section == "" else doc.get(section, {})
             if not isinstance(table, dict):
@@ -555,22 +555,7 @@ class _SceneToml:
 
     def line_of(self, section: str, key: str | None) -> int | None:
         """1-based line of ``key`` in ``[section]`` (or of a table header), None if not found."""
-        current = ""
-        for i, line in enumerate(self.lines, start=1):
-            s = line.strip()
-            m = re.match(r"\[\s*([^\]]+?)\s*\]", s)
-            if m:
-                current = m.group(1).strip('"')
-                if (key is None and current == section) or (section == "" and current == key):
-                    return i
-                continue
-            if (
-                key is not None
-                and current == section
-                and re.match(rf'"?{re.escape(key)}"?\s*[=.]', s)
-            ):
-                return i
-        return None
+        return toml_key_line(self.text, section, key)
 
     def fail(self, section: str, key: str | None, message: str) -> Any:
         raise InputFileError(self.path, message, self.line_of(section, key))
