@@ -171,3 +171,23 @@ def test_no_pose_gives_no_fix():
         np.random.default_rng(0),
     )
     assert fixes.quality[0] == 0 and fixes.used.sum() == 0 and np.isnan(fixes.lat_deg[0])
+
+
+def test_restart_blocks_the_fix_for_a_ttff_whose_mean_is_the_parameter():
+    from virtualgps.receiver import restart
+
+    prof = load_profile("holux-m1000", {"cold_start": {"ttff_cold_s": 35.0, "ttff_hot_s": 1.0}})
+    rng = np.random.default_rng(11)
+    ttff = np.array([restart(ReceiverState(), "cold", 0.0, prof, rng).no_fix_until_t_unix_s
+                     for _ in range(4000)])
+    assert ttff.mean() == pytest.approx(35.0, rel=0.05)
+    assert ttff.std() == pytest.approx(35.0 * prof.cold_start.ttff_sd_frac, rel=0.1)
+    # No fix before the TTFF, fixes after it.
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    t = 1.49e9 + np.arange(60.0)
+    state = restart(ReceiverState(), "cold", t[0], prof, np.random.default_rng(1))
+    fixes, _ = simulate(rx, t, np.zeros((60, 3)), np.zeros((60, 3)), np.ones(60, bool), state,
+                        np.random.default_rng(0))
+    has_fix = fixes.quality > 0
+    assert (has_fix == (t >= state.no_fix_until_t_unix_s)).all() and has_fix.any()

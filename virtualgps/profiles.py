@@ -78,13 +78,33 @@ class SignalParams:
 
 
 @dataclass(frozen=True)
+class ColdStartParams:
+    """Start-up (DESIGN section 6, ``cold_start``): no fix until the time to first fix.
+
+    TTFF after a start of each kind is drawn from a normal distribution with the given mean and
+    ``ttff_sd_frac`` x mean standard deviation (clipped at 0). Typical MediaTek values (MT3339
+    module data sheets quote 35 s cold, 33 s warm, 1 s hot); not M-1000 datasheet facts.
+    ``power_on`` is the start the receiver makes when the run begins ("none": a fix at once).
+    """
+
+    enabled: bool = False
+    power_on: str = "none"
+    ttff_cold_s: float = 35.0
+    ttff_warm_s: float = 33.0
+    ttff_hot_s: float = 1.0
+    ttff_sd_frac: float = 0.15
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
     rate_hz : epochs per second; baud : serial speed the output is paced to (8N1);
     pose_timeout_s : a pose older than this gives no-fix epochs;
     georef : "wgs84" (exact) or "flat_earth" (the paper's conversion);
-    nmea : the ``[nmea]`` table, read by :class:`virtualgps.nmea.NmeaFormat`.
+    nmea : the ``[nmea]`` table, read by :class:`virtualgps.nmea.NmeaFormat`;
+    command_link : "mtk" (answer $PMTK commands written to the device) or "none" (ignore them);
+    firmware : the body of the ``$PMTK705`` answer (release, build id, model) with ``mtk``.
     """
 
     name: str
@@ -96,7 +116,10 @@ class Profile:
     sky: SkyParams = field(default_factory=SkyParams)
     noise: NoiseParams = field(default_factory=NoiseParams)
     signal: SignalParams = field(default_factory=SignalParams)
+    cold_start: ColdStartParams = field(default_factory=ColdStartParams)
     nmea: dict[str, Any] = field(default_factory=dict)
+    command_link: str = "none"
+    firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
     source: str = ""
 
 
@@ -144,8 +167,16 @@ _CHOICES = {
     ("", "georef"): ("wgs84", "flat_earth"),
     ("sky", "foliage"): ("block", "ignore"),
     ("noise", "model"): ("usarsim", "none"),
+    ("cold_start", "power_on"): ("none", "hot", "warm", "cold"),
+    ("", "command_link"): ("mtk", "none"),
 }
-_TABLES = {"sky": SkyParams, "noise": NoiseParams, "signal": SignalParams}
+_NMEA_TEXT = frozenset(chr(c) for c in range(32, 127)) - set("$*!\\")
+_TABLES = {
+    "sky": SkyParams,
+    "noise": NoiseParams,
+    "signal": SignalParams,
+    "cold_start": ColdStartParams,
+}
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -234,7 +265,10 @@ def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
                 prefix, key, f"unknown setting {full!r}; known in [{prefix}]: {', '.join(fields)}"
             )
         default = fields[key].default
-        if isinstance(default, float):
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise SettingError(prefix, key, f"{full} must be true or false, got {value!r}")
+        elif isinstance(default, float):
             value = _float(value, prefix, key)
         elif isinstance(default, int):
             if isinstance(value, bool) or not isinstance(value, int):
@@ -287,6 +321,10 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
                 value = _float(value, "", key)
             elif key == "baud" and (isinstance(value, bool) or not isinstance(value, int)):
                 raise SettingError("", key, f"baud must be an integer, got {value!r}")
+            elif key in ("name", "description", "firmware") and not isinstance(value, str):
+                raise SettingError("", key, f"{key} must be a string, got {value!r}")
+            elif key == "firmware" and not set(value) <= _NMEA_TEXT:
+                raise SettingError("", key, "firmware must be printable ASCII without $ * ! \\")
             choices = _CHOICES.get(("", key))
             if choices and value not in choices:
                 raise SettingError("", key, f"{key} must be one of {choices}, got {value!r}")

@@ -63,10 +63,64 @@ class ReceiverState:
 
     n_epochs : epochs simulated so far
     last_t_unix_s : time of the last simulated epoch (NaN before the first)
+    no_fix_until_t_unix_s : no fix before this time (start-up: the time to first fix after the
+        last restart; -inf when the receiver is not starting up)
     """
 
     n_epochs: int = 0
     last_t_unix_s: float = float("nan")
+    no_fix_until_t_unix_s: float = float("-inf")
+
+
+START_KINDS = ("hot", "warm", "cold")
+
+
+def restart(
+    state: ReceiverState, kind: str, t_unix_s: float, profile: Profile, rng: np.random.Generator
+) -> ReceiverState:
+    """Restart the receiver: no fix until a time to first fix drawn for that kind of start.
+
+    A cold start knows no almanac, ephemeris, time or position; warm keeps the almanac and time;
+    hot keeps everything (MTK ``$PMTK103/102/101``; a full cold start, ``$PMTK104``, is a cold
+    start here). TTFF ~ Normal(mean, ttff_sd_frac x mean), clipped at 0 (profile ``cold_start``).
+
+    Parameters
+    ----------
+    state : the receiver state
+    kind : "hot", "warm" or "cold"
+    t_unix_s : when the restart happens, UTC seconds (simulated clock)
+    profile : gives the TTFF parameters
+    rng : random generator (one normal draw)
+
+    Returns
+    -------
+    state : with ``no_fix_until_t_unix_s`` set
+    """
+    if kind not in START_KINDS:
+        raise ValueError(f"start kind must be one of {START_KINDS}, not {kind!r}")
+    cs = profile.cold_start
+    mean_s = {"hot": cs.ttff_hot_s, "warm": cs.ttff_warm_s, "cold": cs.ttff_cold_s}[kind]
+    ttff_s = max(0.0, mean_s * (1.0 + cs.ttff_sd_frac * float(rng.standard_normal())))
+    return replace(state, no_fix_until_t_unix_s=t_unix_s + ttff_s)
+
+
+def initial_state(profile: Profile, t_unix_s: float, rng: np.random.Generator) -> ReceiverState:
+    """The state at power-on: a start of the profile's ``cold_start.power_on`` kind, if enabled.
+
+    Parameters
+    ----------
+    profile : the receiver profile
+    t_unix_s : power-on time, UTC seconds
+    rng : random generator (one draw when a start is made)
+
+    Returns
+    -------
+    state : ReceiverState
+    """
+    state = ReceiverState()
+    if profile.cold_start.enabled and profile.cold_start.power_on != "none":
+        state = restart(state, profile.cold_start.power_on, t_unix_s, profile, rng)
+    return state
 
 
 @dataclass(frozen=True)
@@ -329,7 +383,7 @@ def simulate(
     seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
-    has_fix = pose_valid & (n_used >= 4)
+    has_fix = pose_valid & (n_used >= 4) & (t >= state.no_fix_until_t_unix_s)
     hdop, vdop, pdop = dop(sky.los_enu, used)
 
     # Noise: always draw, so batch and epoch-by-epoch runs consume the generator identically.
