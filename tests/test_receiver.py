@@ -191,3 +191,112 @@ def test_restart_blocks_the_fix_for_a_ttff_whose_mean_is_the_parameter():
                         np.random.default_rng(0))
     has_fix = fixes.quality > 0
     assert (has_fix == (t >= state.no_fix_until_t_unix_s)).all() and has_fix.any()
+
+
+def _enu_errors(fixes):
+    """Reported minus true position, metres ENU (WGS-84 profiles)."""
+    truth = geodesy.geodetic_to_ecef(fixes.truth_lat_deg, fixes.truth_lon_deg,
+                                     fixes.truth_alt_hae_m)
+    rep = geodesy.geodetic_to_ecef(fixes.lat_deg, fixes.lon_deg,
+                                   fixes.alt_msl_m + fixes.geoid_sep_m)
+    return geodesy.ecef_to_enu(rep, GEOREF.lat0_deg, GEOREF.lon0_deg, GEOREF.alt0_hae_m) - \
+        geodesy.ecef_to_enu(truth, GEOREF.lat0_deg, GEOREF.lon0_deg, GEOREF.alt0_hae_m)
+
+
+UNIT_UERE = {"sis_m": 1.0, "iono_zenith_m": 0.0, "tropo_zenith_m": 0.0, "rx_noise_m": 0.0,
+             "multipath_a_m": 0.0, "multipath_b_m": 0.0}
+
+
+def test_dop_error_covariance_scales_with_the_dop():
+    """Equal unit range errors: the position error covariance is sigma^2 (G^T G)^-1."""
+    prof = load_profile("ideal", {"dop_error": {"enabled": True, **UNIT_UERE},
+                                  "sky": {"elevation_mask_deg": -1.0}})
+    sky = FixedSky([0.0, 0.0, 120.0, 240.0], [90.0, 0.0, 0.0, 0.0])
+    fixes, _ = _run(prof, sky, n_t=20_000, seed=2)
+    err = _enu_errors(fixes)
+    assert fixes.hdop[0] == pytest.approx(2 / np.sqrt(3), rel=1e-6)
+    assert fixes.vdop[0] == pytest.approx(2 / np.sqrt(3), rel=1e-6)
+    # Q = diag(2/3, 2/3, 4/3 ... ) for this geometry: east/north sigma sqrt(2/3), up 2/sqrt(3).
+    assert err[:, 0].std() == pytest.approx(np.sqrt(2 / 3), rel=0.03)
+    assert err[:, 1].std() == pytest.approx(np.sqrt(2 / 3), rel=0.03)
+    assert err[:, 2].std() == pytest.approx(2 / np.sqrt(3), rel=0.03)
+    # Doubling the range errors doubles the position errors: the scale is the UERE times DOP.
+    prof2 = load_profile("ideal", {"dop_error": {"enabled": True, **UNIT_UERE, "sis_m": 2.0},
+                                   "sky": {"elevation_mask_deg": -1.0}})
+    fixes2, _ = _run(prof2, sky, n_t=20_000, seed=2)
+    np.testing.assert_allclose(_enu_errors(fixes2), 2 * err, atol=1e-5)
+
+
+def test_dop_error_off_is_the_ideal_receiver():
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    on, _ = _run(load_profile("ideal", {"dop_error": {"enabled": True}}), sky, n_t=50)
+    off, _ = _run(load_profile("ideal"), sky, n_t=50)
+    assert np.abs(_enu_errors(off)).max() < 1e-6
+    assert np.abs(_enu_errors(on)).max() > 0.1
+    np.testing.assert_array_equal(on.used, off.used)
+    np.testing.assert_array_equal(on.hdop, off.hdop)
+
+
+def test_two_d_fix_with_three_satellites_holds_the_last_altitude():
+    prof = load_profile("ideal", {"dop_error": {"enabled": True}})
+    four = FixedSky([0.0, 90.0, 200.0, 300.0], [70.0, 30.0, 40.0, 20.0])
+    rx = Receiver(profile=prof, ephemeris=four, scene=None, georef=GEOREF)
+    t = 1.49e9 + np.arange(6.0)
+    # Epochs 3-5 lose the fourth satellite behind a wall (az 300).
+    fixes, state = simulate(rx, t[:3], np.zeros((3, 3)), np.zeros((3, 3)), np.ones(3, bool),
+                            ReceiverState(), np.random.default_rng(0))
+    rx_wall = Receiver(profile=prof, ephemeris=four, scene=WallOnAzimuth(290, 310), georef=GEOREF)
+    fixes2, _ = simulate(rx_wall, t[3:], np.zeros((3, 3)), np.zeros((3, 3)), np.ones(3, bool),
+                         state, np.random.default_rng(1))
+    assert (fixes.mode == 3).all() and (fixes2.mode == 2).all() and (fixes2.quality == 1).all()
+    held_hae = fixes2.alt_msl_m + fixes2.geoid_sep_m
+    np.testing.assert_allclose(held_hae, fixes.alt_msl_m[-1] + fixes.geoid_sep_m[-1], atol=1e-9)
+    assert (fixes2.sats_used == 3).all()
+    # Without a 3D fix before, 3 satellites give no fix.
+    cold, _ = simulate(rx_wall, t[3:], np.zeros((3, 3)), np.zeros((3, 3)), np.ones(3, bool),
+                       ReceiverState(), np.random.default_rng(1))
+    assert (cold.quality == 0).all()
+
+
+@pytest.mark.parametrize("domain", ["position", "range"])
+def test_correlated_error_autocorrelation_is_1_over_e_at_tau(domain):
+    """A long seeded run: the error's autocorrelation at lag tau is e^-1 within 10 %."""
+    tau = 20.0
+    over = {"correlated_error": {"enabled": True, "domain": domain, "tau_s": tau, "sigma_m": 2.0}}
+    if domain == "range":  # only the Gauss-Markov range errors (no white receiver noise)
+        over["dop_error"] = {"enabled": True, **UNIT_UERE}
+    prof = load_profile("ideal", over)
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    rng = np.random.default_rng(5)
+    state = ReceiverState()
+    errs = []
+    chunk, n = 50_000, 200_000
+    for a in range(0, n, chunk):  # in chunks: the state carries the process across calls
+        t = 1.49e9 + np.arange(a, a + chunk, dtype=float)
+        fixes, state = simulate(rx, t, np.zeros((chunk, 3)), np.zeros((chunk, 3)),
+                                np.ones(chunk, bool), state, rng)
+        errs.append(_enu_errors(fixes))
+    err = np.concatenate(errs)
+    lag = int(tau)
+    for axis in (0, 1, 2):
+        x = err[:, axis] - err[:, axis].mean()
+        rho = np.dot(x[:-lag], x[lag:]) / np.dot(x, x)
+        assert rho == pytest.approx(np.exp(-1.0), rel=0.10), (axis, rho)
+    if domain == "position":
+        assert err[:, 0].std() == pytest.approx(2.0, rel=0.05)
+        assert err[:, 2].std() == pytest.approx(3.0, rel=0.05)  # up_ratio 1.5
+
+
+def test_effects_keep_batch_equal_to_epoch_by_epoch():
+    prof = load_profile("ideal", {"dop_error": {"enabled": True},
+                                  "correlated_error": {"enabled": True, "domain": "range"}})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    batch, _ = _run(prof, sky, n_t=12, seed=9)
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    rng, state = np.random.default_rng(9), ReceiverState()
+    for i in range(12):
+        one, state = simulate(rx, 1.49e9 + np.array([float(i)]), np.zeros((1, 3)),
+                              np.zeros((1, 3)), np.ones(1, bool), state, rng)
+        assert one.lat_deg[0] == pytest.approx(batch.lat_deg[i], abs=1e-12)
+        assert one.alt_msl_m[0] == pytest.approx(batch.alt_msl_m[i], abs=1e-9)

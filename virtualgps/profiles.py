@@ -96,6 +96,44 @@ class ColdStartParams:
 
 
 @dataclass(frozen=True)
+class DopErrorParams:
+    """``dop_error``: per-satellite range errors by elevation, solved by weighted least squares.
+
+    One-sigma UERE (metres) = sqrt(sis^2 + (F_iono iono_zenith)^2 + (F_tropo tropo_zenith)^2
+    + rx_noise^2 + (multipath_a + multipath_b exp(-el / 10 deg))^2); see
+    :func:`virtualgps.errors.uere_sigma_m`. Defaults: modern GPS signal-in-space URE (< 1 m
+    RMS), a single-frequency receiver's residual ionosphere after the broadcast model (~50 % of a
+    few metres of vertical delay) and troposphere after a model, and DO-229's airborne multipath
+    form; typical textbook values (Misra & Enge, table 7.3), to be calibrated.
+    """
+
+    enabled: bool = False
+    sis_m: float = 0.8
+    iono_zenith_m: float = 2.0
+    tropo_zenith_m: float = 0.2
+    rx_noise_m: float = 0.5
+    multipath_a_m: float = 0.13
+    multipath_b_m: float = 0.53
+
+
+@dataclass(frozen=True)
+class CorrelatedErrorParams:
+    """``correlated_error``: first-order Gauss-Markov errors with correlation time ``tau_s``.
+
+    domain "range": per-satellite range errors (needs ``dop_error``), stationary sigma
+    ``sigma_m`` at the zenith scaled with elevation like the UERE; they replace the white part
+    of the UERE except the receiver noise, and a change of the used set moves the fix.
+    domain "position": east/north/up position errors, sigma ``sigma_m`` each (up: x ``up_ratio``).
+    """
+
+    enabled: bool = False
+    domain: str = "range"
+    tau_s: float = 150.0
+    sigma_m: float = 2.0
+    up_ratio: float = 1.5
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -117,6 +155,8 @@ class Profile:
     noise: NoiseParams = field(default_factory=NoiseParams)
     signal: SignalParams = field(default_factory=SignalParams)
     cold_start: ColdStartParams = field(default_factory=ColdStartParams)
+    dop_error: DopErrorParams = field(default_factory=DopErrorParams)
+    correlated_error: CorrelatedErrorParams = field(default_factory=CorrelatedErrorParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -168,6 +208,7 @@ _CHOICES = {
     ("sky", "foliage"): ("block", "ignore"),
     ("noise", "model"): ("usarsim", "none"),
     ("cold_start", "power_on"): ("none", "hot", "warm", "cold"),
+    ("correlated_error", "domain"): ("range", "position"),
     ("", "command_link"): ("mtk", "none"),
 }
 _NMEA_TEXT = frozenset(chr(c) for c in range(32, 127)) - set("$*!\\")
@@ -176,6 +217,8 @@ _TABLES = {
     "noise": NoiseParams,
     "signal": SignalParams,
     "cold_start": ColdStartParams,
+    "dop_error": DopErrorParams,
+    "correlated_error": CorrelatedErrorParams,
 }
 
 
@@ -351,6 +394,15 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
         )
     if not 4 <= prof.sky.max_channels <= 12:
         raise SettingError("sky", "max_channels", "sky.max_channels must be in [4, 12]")
+    if prof.dop_error.enabled and prof.noise.model != "none":
+        raise SettingError("noise", "model", 'dop_error replaces the baseline noise: set '
+                           'noise.model = "none" (or disable dop_error)')
+    ce = prof.correlated_error
+    if ce.enabled and ce.domain == "range" and not prof.dop_error.enabled:
+        raise SettingError("correlated_error", "domain", 'correlated_error.domain = "range" '
+                           'needs dop_error.enabled (or use domain = "position")')
+    if ce.tau_s <= 0 or ce.sigma_m < 0:
+        raise SettingError("correlated_error", "tau_s", "need tau_s > 0 and sigma_m >= 0")
     if prof.noise.min_noise_m < 0 or prof.noise.max_noise_m < prof.noise.min_noise_m:
         raise SettingError(
             "noise",

@@ -17,9 +17,9 @@ from typing import Protocol
 
 import numpy as np
 
-from virtualgps import geodesy
+from virtualgps import errors, geodesy
 from virtualgps.profiles import Profile
-from virtualgps.records import MODE_3D, MODE_NONE, QUALITY_GPS, QUALITY_NONE, Fixes
+from virtualgps.records import MODE_2D, MODE_3D, MODE_NONE, QUALITY_GPS, QUALITY_NONE, Fixes
 
 
 class Ephemeris(Protocol):
@@ -65,11 +65,16 @@ class ReceiverState:
     last_t_unix_s : time of the last simulated epoch (NaN before the first)
     no_fix_until_t_unix_s : no fix before this time (start-up: the time to first fix after the
         last restart; -inf when the receiver is not starting up)
+    gm_m : (n_sat,) or (3,) float, metres, the Gauss-Markov errors (``correlated_error``) after
+        the last epoch, None before the first
+    last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
     """
 
     n_epochs: int = 0
     last_t_unix_s: float = float("nan")
     no_fix_until_t_unix_s: float = float("-inf")
+    gm_m: np.ndarray | None = field(default=None, compare=False)
+    last_alt_hae_m: float = float("nan")
 
 
 START_KINDS = ("hot", "warm", "cold")
@@ -349,6 +354,165 @@ def cn0_from_elevation_dbhz(
     return horizon_dbhz + (zenith_dbhz - horizon_dbhz) * s
 
 
+def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
+    """Columns of the per-epoch row of uniforms each error model uses.
+
+    Parameters
+    ----------
+    profile : the receiver profile
+    n_sat : number of satellites
+
+    Returns
+    -------
+    layout : start columns ("usarsim", "white", "gm") and "total"; a model that is off takes none
+    """
+    even = n_sat + (n_sat % 2)  # Box-Muller works in pairs
+    cols = {"usarsim": 0}
+    total = 2  # the paper's two uniforms, always drawn (keeps its bytes unchanged)
+    if profile.dop_error.enabled:
+        cols["white"] = total
+        total += even
+    ce = profile.correlated_error
+    if ce.enabled:
+        cols["gm"] = total
+        total += even if ce.domain == "range" else 4
+    cols["total"] = total
+    return cols
+
+
+@dataclass(frozen=True)
+class PositionErrors:
+    """Output of :func:`position_errors`.
+
+    enu_m : (n_t, 3) metres, error of the reported position (up 0 for the paper's model)
+    three_d, two_d : (n_t,) bool, a 3D / 2D solution exists (enough used satellites)
+    gm_m : the Gauss-Markov state after the batch (None when the effect is off)
+    """
+
+    enu_m: np.ndarray
+    three_d: np.ndarray
+    two_d: np.ndarray
+    gm_m: np.ndarray | None
+
+
+def position_errors(
+    prof: Profile,
+    sky: Sky,
+    used: np.ndarray,
+    n_used: np.ndarray,
+    dt_s: np.ndarray,
+    state: ReceiverState,
+    u: np.ndarray,
+    layout: dict[str, int],
+) -> PositionErrors:
+    """The position error of each epoch under the profile's error model.
+
+    The paper's model (``noise.model = "usarsim"``): white horizontal noise with sigma(n).
+    ``dop_error``: per-satellite range errors with the UERE sigma of their elevation (white, or
+    Gauss-Markov with ``correlated_error`` in the range domain plus white receiver noise),
+    solved by weighted least squares over the used satellites: 3D with >= 4, 2D (height held)
+    with 3. ``correlated_error`` in the position domain adds Gauss-Markov E/N/U errors.
+
+    Parameters
+    ----------
+    prof : profile
+    sky : the epochs' sky, (n_t, n_sat)
+    used : (n_t, n_sat) bool, used satellites
+    n_used : (n_t,) int
+    dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
+    state : receiver state before the batch
+    u : (n_t, total) uniforms, one row per epoch
+    layout : from :func:`draw_layout`
+
+    Returns
+    -------
+    errors : PositionErrors
+    """
+    n_t, n_sat = used.shape
+    enu = np.zeros((n_t, 3))
+    gm_state = None
+    three_d = n_used >= 4
+    two_d = np.zeros(n_t, bool)
+    if prof.noise.model == "usarsim":
+        sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
+        z_north, z_east = box_muller(u[:, 0], u[:, 1])
+        enu[:, 0], enu[:, 1] = sigma * z_east, sigma * z_north
+    ce = prof.correlated_error
+    if ce.enabled:
+        c = layout["gm"]
+        width = n_sat + (n_sat % 2) if ce.domain == "range" else 4
+        z = errors.normals_from_uniforms(u[:, c : c + width])
+        if ce.domain == "range":
+            el_shape = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof)) / errors.uere_sigma_m(
+                np.array(90.0), *_uere_args(prof)
+            )
+            x0 = _gm_start(state, n_sat)
+            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
+            gm_state = gm[-1]
+            corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
+        else:
+            x0 = _gm_start(state, 3)
+            sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
+            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
+            gm_state = gm[-1]
+            enu += gm
+    if prof.dop_error.enabled:
+        sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof))
+        c = layout["white"]
+        z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
+        if ce.enabled and ce.domain == "range":
+            eps = corr_range + prof.dop_error.rx_noise_m * z
+        else:
+            eps = sigma_i * z
+        e3 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=4)
+        e2 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=3)
+        two_d = n_used == 3
+        three_d = three_d & np.isfinite(e3[:, 0])
+        two_d &= np.isfinite(e2[:, 0])
+        enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
+    return PositionErrors(enu, three_d, two_d, gm_state)
+
+
+def _gm_start(state: ReceiverState, n: int) -> np.ndarray:
+    """The Gauss-Markov state to continue from (zeros at the start: the first epoch's infinite
+    step then draws it from the stationary distribution)."""
+    if state.gm_m is not None and state.gm_m.shape == (n,):
+        return state.gm_m
+    return np.zeros(n)
+
+
+def _uere_args(prof: Profile) -> tuple[float, ...]:
+    d = prof.dop_error
+    return (d.sis_m, d.iono_zenith_m, d.tropo_zenith_m, d.rx_noise_m, d.multipath_a_m,
+            d.multipath_b_m)
+
+
+def hold_altitude(
+    alt_hae_m: np.ndarray, fix_3d: np.ndarray, fix_2d: np.ndarray, last_alt_hae_m: float
+) -> tuple[np.ndarray, float]:
+    """A 2D fix reports the altitude of the last 3D fix (MTK and most receivers hold it).
+
+    Parameters
+    ----------
+    alt_hae_m : (n_t,) metres, the 3D solution's altitude (meaningless on 2D epochs)
+    fix_3d, fix_2d : (n_t,) bool
+    last_alt_hae_m : altitude of the last 3D fix before the batch (NaN if none)
+
+    Returns
+    -------
+    alt_hae_m : (n_t,) metres, with 2D epochs holding the last 3D altitude (NaN if none yet)
+    last_alt_hae_m : the last 3D altitude after the batch
+    """
+    if not fix_2d.any():
+        last = alt_hae_m[fix_3d][-1] if fix_3d.any() else last_alt_hae_m
+        return alt_hae_m, float(last)
+    vals = np.concatenate([[last_alt_hae_m], np.where(fix_3d, alt_hae_m, np.nan)])
+    idx = np.where(np.isfinite(vals), np.arange(vals.size), 0)
+    held = vals[np.maximum.accumulate(idx)][:-1]  # last 3D altitude strictly before each epoch
+    out = np.where(fix_2d, held, alt_hae_m)
+    return out, float(vals[np.maximum.accumulate(idx)][-1])
+
+
 def simulate(
     rx: Receiver,
     t_unix_s: np.ndarray,
@@ -383,24 +547,36 @@ def simulate(
     seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
-    has_fix = pose_valid & (n_used >= 4) & (t >= state.no_fix_until_t_unix_s)
+    starting = t < state.no_fix_until_t_unix_s
     hdop, vdop, pdop = dop(sky.los_enu, used)
 
-    # Noise: always draw, so batch and epoch-by-epoch runs consume the generator identically.
-    u = rng.random((n_t, 2))
-    if prof.noise.model == "usarsim":
-        sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
-        z_north, z_east = box_muller(u[:, 0], u[:, 1])
-        north_m, east_m = sigma * z_north, sigma * z_east
-    else:
-        north_m = east_m = np.zeros(n_t)
+    # All random numbers of an epoch come from one row of uniforms, so batch and
+    # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
+    # only; the paper's model uses the first two).
+    layout = draw_layout(prof, len(rx.ephemeris.prn))
+    u = rng.random((n_t, layout["total"]))
+    dt_s = np.diff(t, prepend=state.last_t_unix_s)
+    dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
+    err = position_errors(prof, sky, used, n_used, dt_s, state, u, layout)
+    mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
+    has_fix = pose_valid & (mode > MODE_NONE) & ~starting
+    mode = np.where(has_fix, mode, MODE_NONE)
+    north_m, east_m, up_m = err.enu_m[:, 1], err.enu_m[:, 0], err.enu_m[:, 2]
     if prof.georef == "flat_earth":
         lat, lon = geodesy.flat_earth_offset_deg(sky.lat_deg, sky.lon_deg, east_m, north_m)
     else:
         lat, lon = geodesy.offset_geodetic_deg(
             sky.lat_deg, sky.lon_deg, sky.alt_hae_m, east_m, north_m
         )
-    alt_hae = sky.alt_hae_m  # the paper's model perturbs latitude and longitude only
+    # The paper's model perturbs latitude and longitude only (up_m is 0 there). A 2D fix holds
+    # the altitude of the last 3D fix.
+    alt_hae = sky.alt_hae_m + up_m
+    alt_hae, last_alt = hold_altitude(
+        alt_hae, has_fix & (mode == MODE_3D), has_fix & (mode == MODE_2D), state.last_alt_hae_m
+    )
+    lost_2d = has_fix & ~np.isfinite(alt_hae)  # a 2D fix with no 3D altitude to hold: none
+    has_fix &= ~lost_2d
+    mode = np.where(has_fix, mode, MODE_NONE)
     geoid = geodesy.geoid_sep_m(lat, lon)
 
     vel = np.nan_to_num(np.asarray(vel_enu_mps, dtype=float))
@@ -421,7 +597,7 @@ def simulate(
         alt_msl_m=(alt_hae - geoid) * nofix,
         geoid_sep_m=geoid,
         quality=np.where(has_fix, QUALITY_GPS, QUALITY_NONE).astype(np.int8),
-        mode=np.where(has_fix, MODE_3D, MODE_NONE).astype(np.int8),
+        mode=mode.astype(np.int8),
         hdop=hdop * nofix,
         vdop=vdop * nofix,
         pdop=pdop * nofix,
@@ -441,5 +617,7 @@ def simulate(
         state,
         n_epochs=state.n_epochs + n_t,
         last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
+        gm_m=err.gm_m,
+        last_alt_hae_m=last_alt,
     )
     return fixes, new_state
