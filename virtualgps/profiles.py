@@ -134,6 +134,28 @@ class CorrelatedErrorParams:
 
 
 @dataclass(frozen=True)
+class Cn0TrackingParams:
+    """``cn0_tracking``: C/N0 from elevation and losses; tracking with hysteresis.
+
+    C/N0 = cn0_zenith_dbhz + antenna gain (0 dB at the zenith, -horizon_loss_db at the horizon)
+    + a Gauss-Markov fade per satellite (fade_sigma_db, fade_tau_s); a blocked line of sight
+    gives no signal. Acquired after reacq_s at or above acq_dbhz, tracked down to track_dbhz.
+    Used = tracked and above the elevation mask; GSV SNR = the tracked C/N0. Defaults: a small
+    patch antenna; MTK's acquisition/tracking sensitivities (-148/-165 dBm) set the thresholds'
+    order, their values are to be calibrated on the MT3339 log (GSV SNR median 26 dB-Hz).
+    """
+
+    enabled: bool = False
+    cn0_zenith_dbhz: float = 42.0
+    horizon_loss_db: float = 14.0
+    fade_sigma_db: float = 2.0
+    fade_tau_s: float = 10.0
+    acq_dbhz: float = 24.0
+    track_dbhz: float = 16.0
+    reacq_s: float = 2.0
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -157,6 +179,7 @@ class Profile:
     cold_start: ColdStartParams = field(default_factory=ColdStartParams)
     dop_error: DopErrorParams = field(default_factory=DopErrorParams)
     correlated_error: CorrelatedErrorParams = field(default_factory=CorrelatedErrorParams)
+    cn0_tracking: Cn0TrackingParams = field(default_factory=Cn0TrackingParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -219,6 +242,7 @@ _TABLES = {
     "cold_start": ColdStartParams,
     "dop_error": DopErrorParams,
     "correlated_error": CorrelatedErrorParams,
+    "cn0_tracking": Cn0TrackingParams,
 }
 
 
@@ -401,6 +425,10 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
     if ce.enabled and ce.domain == "range" and not prof.dop_error.enabled:
         raise SettingError("correlated_error", "domain", 'correlated_error.domain = "range" '
                            'needs dop_error.enabled (or use domain = "position")')
+    ct = prof.cn0_tracking
+    if ct.acq_dbhz < ct.track_dbhz or ct.fade_tau_s <= 0 or ct.reacq_s < 0:
+        raise SettingError("cn0_tracking", "acq_dbhz", "need acq_dbhz >= track_dbhz, "
+                           "fade_tau_s > 0 and reacq_s >= 0")
     if ce.tau_s <= 0 or ce.sigma_m < 0:
         raise SettingError("correlated_error", "tau_s", "need tau_s > 0 and sigma_m >= 0")
     if prof.noise.min_noise_m < 0 or prof.noise.max_noise_m < prof.noise.min_noise_m:

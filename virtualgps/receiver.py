@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from virtualgps import errors, geodesy
+from virtualgps import errors, geodesy, signals
 from virtualgps.profiles import Profile
 from virtualgps.records import MODE_2D, MODE_3D, MODE_NONE, QUALITY_GPS, QUALITY_NONE, Fixes
 
@@ -68,6 +68,8 @@ class ReceiverState:
     gm_m : (n_sat,) or (3,) float, metres, the Gauss-Markov errors (``correlated_error``) after
         the last epoch, None before the first
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
+    fade_db, tracked, acq_run : (n_sat,) the ``cn0_tracking`` state: C/N0 fades (dB), tracked
+        flags, epochs spent at or above the acquisition threshold; None before the first epoch
     """
 
     n_epochs: int = 0
@@ -75,6 +77,9 @@ class ReceiverState:
     no_fix_until_t_unix_s: float = float("-inf")
     gm_m: np.ndarray | None = field(default=None, compare=False)
     last_alt_hae_m: float = float("nan")
+    fade_db: np.ndarray | None = field(default=None, compare=False)
+    tracked: np.ndarray | None = field(default=None, compare=False)
+    acq_run: np.ndarray | None = field(default=None, compare=False)
 
 
 START_KINDS = ("hot", "warm", "cold")
@@ -364,7 +369,8 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
 
     Returns
     -------
-    layout : start columns ("usarsim", "white", "gm") and "total"; a model that is off takes none
+    layout : start columns ("usarsim", "white", "gm", "fade") and "total"; a model that is off
+        takes none
     """
     even = n_sat + (n_sat % 2)  # Box-Muller works in pairs
     cols = {"usarsim": 0}
@@ -376,6 +382,9 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
     if ce.enabled:
         cols["gm"] = total
         total += even if ce.domain == "range" else 4
+    if profile.cn0_tracking.enabled:
+        cols["fade"] = total
+        total += even
     cols["total"] = total
     return cols
 
@@ -473,6 +482,45 @@ def position_errors(
     return PositionErrors(enu, three_d, two_d, gm_state)
 
 
+def tracked_cn0(
+    prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, u: np.ndarray,
+    layout: dict[str, int],
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """C/N0 and tracking of every satellite (``cn0_tracking``).
+
+    Parameters
+    ----------
+    prof : profile
+    sky : the epochs' sky, (n_t, n_sat)
+    dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
+    state : receiver state before the batch
+    u : (n_t, total) uniforms; layout : from :func:`draw_layout`
+
+    Returns
+    -------
+    cn0_dbhz : (n_t, n_sat) dB-Hz of tracked satellites, NaN elsewhere
+    tracked : (n_t, n_sat) bool
+    state_update : the new ``fade_db``, ``tracked`` and ``acq_run`` for the receiver state
+    """
+    ct = prof.cn0_tracking
+    n_t, n_sat = sky.el_deg.shape
+    z = errors.normals_from_uniforms(u[:, layout["fade"] : layout["fade"] + n_sat + n_sat % 2])
+    fade0 = state.fade_db if state.fade_db is not None else np.zeros(n_sat)
+    fade = errors.gauss_markov(fade0, dt_s, ct.fade_tau_s, np.full(n_sat, ct.fade_sigma_db),
+                               z[:, :n_sat])
+    cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
+    above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
+    cn0 = np.where(above & ~sky.blocked, cn0, -np.inf)  # blocked: no signal (no NLOS model)
+    finite_dt = dt_s[np.isfinite(dt_s)]
+    step_s = float(np.median(finite_dt)) if finite_dt.size else 1.0 / prof.rate_hz
+    reacq = max(1, int(np.ceil(ct.reacq_s / step_s - 1e-9)))
+    tracked0 = state.tracked if state.tracked is not None else np.zeros(n_sat, bool)
+    run0 = state.acq_run if state.acq_run is not None else np.zeros(n_sat, int)
+    tracked, run = signals.track(cn0, ct.acq_dbhz, ct.track_dbhz, reacq, tracked0, run0)
+    out = np.where(tracked, cn0, np.nan)
+    return out, tracked, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
+
+
 def _gm_start(state: ReceiverState, n: int) -> np.ndarray:
     """The Gauss-Markov state to continue from (zeros at the start: the first epoch's infinite
     step then draws it from the stationary distribution)."""
@@ -544,19 +592,28 @@ def simulate(
     n_t = t.shape[0]
     ant = np.where(pose_valid[:, None], antenna_enu_m, 0.0)
     sky = compute_sky(rx, t, ant)
-    seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
+    layout = draw_layout(prof, len(rx.ephemeris.prn))
+    # All random numbers of an epoch come from one row of uniforms, so batch and
+    # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
+    # only; the paper's model uses the first two).
+    u = rng.random((n_t, layout["total"]))
+    dt_s = np.diff(t, prepend=state.last_t_unix_s)
+    dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
+    if prof.cn0_tracking.enabled:
+        cn0, tracked, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)
+        seen = tracked & sky.above_mask & pose_valid[:, None]
+    else:
+        track_state = {}
+        seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
+        cn0 = cn0_from_elevation_dbhz(
+            sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
+        )
+        cn0 = np.where(seen, cn0, np.nan)
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
     starting = t < state.no_fix_until_t_unix_s
     hdop, vdop, pdop = dop(sky.los_enu, used)
 
-    # All random numbers of an epoch come from one row of uniforms, so batch and
-    # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
-    # only; the paper's model uses the first two).
-    layout = draw_layout(prof, len(rx.ephemeris.prn))
-    u = rng.random((n_t, layout["total"]))
-    dt_s = np.diff(t, prepend=state.last_t_unix_s)
-    dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
     err = position_errors(prof, sky, used, n_used, dt_s, state, u, layout)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
@@ -584,10 +641,6 @@ def simulate(
     course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
 
     in_view = (np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0) & pose_valid[:, None]
-    cn0 = cn0_from_elevation_dbhz(
-        sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
-    )
-    cn0 = np.where(seen, cn0, np.nan)
     nofix = np.where(has_fix, 1.0, np.nan)
     truth_nan = np.where(pose_valid, 1.0, np.nan)
     fixes = Fixes(
@@ -619,5 +672,6 @@ def simulate(
         last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
         gm_m=err.gm_m,
         last_alt_hae_m=last_alt,
+        **track_state,
     )
     return fixes, new_state
