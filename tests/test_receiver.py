@@ -300,3 +300,44 @@ def test_effects_keep_batch_equal_to_epoch_by_epoch():
                               np.zeros((1, 3)), np.ones(1, bool), state, rng)
         assert one.lat_deg[0] == pytest.approx(batch.lat_deg[i], abs=1e-12)
         assert one.alt_msl_m[0] == pytest.approx(batch.alt_msl_m[i], abs=1e-9)
+
+
+def _walk(prof, vel_east_mps, n=30, seed=0):
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    t = 1.49e9 + np.arange(float(n))
+    v = np.zeros((n, 3))
+    v[:, 0] = vel_east_mps
+    pos = np.cumsum(v, axis=0) - v  # x = v t
+    fixes, _ = simulate(rx, t, pos, v, np.ones(n, bool), ReceiverState(),
+                        np.random.default_rng(seed))
+    return fixes, _enu_errors(fixes)
+
+
+def test_latency_reports_where_the_antenna_was():
+    fixes, err = _walk(load_profile("ideal", {"latency": {"enabled": True, "latency_s": 0.3}}), 2.0)
+    np.testing.assert_allclose(err[:, 0], -0.6, atol=1e-5)
+    np.testing.assert_allclose(err[:, 1:], 0.0, atol=1e-5)
+
+
+def test_nav_filter_lags_a_moving_antenna_by_the_first_order_steady_state():
+    tau = 2.0
+    _, err = _walk(load_profile("ideal", {"nav_filter": {"enabled": True, "tau_s": tau}}), 1.5)
+    alpha = 1 - np.exp(-1.0 / tau)
+    # A first-order low-pass following a ramp of v per step lags v (1 - alpha) / alpha.
+    assert err[-1, 0] == pytest.approx(-1.5 * (1 - alpha) / alpha, abs=1e-4)
+    assert err[0, 0] == pytest.approx(0.0, abs=1e-6)  # starts on the first solution
+    _, err0 = _walk(load_profile("ideal", {"nav_filter": {"enabled": True, "tau_s": tau}}), 0.0)
+    np.testing.assert_allclose(err0, 0.0, atol=1e-5)  # no lag at rest
+
+
+def test_static_hold_freezes_the_output_below_the_threshold():
+    over = {"dop_error": {"enabled": True}, "static_hold": {"enabled": True,
+                                                           "threshold_mps": 0.4}}
+    slow, _ = _walk(load_profile("ideal", over), 0.1)
+    # Held to 0.1 mm (the output is converted by first-order offsets from the moving truth).
+    assert np.ptp(slow.lat_deg) < 1e-9 and np.ptp(slow.lon_deg) < 1e-9
+    fast, _ = _walk(load_profile("ideal", over), 1.0)
+    assert np.ptp(fast.lon_deg) > 1e-6
+    free, _ = _walk(load_profile("ideal", {"dop_error": {"enabled": True}}), 0.1)
+    assert np.ptp(free.lat_deg) > 1e-6  # the same noise moves the fix without the hold

@@ -156,6 +156,33 @@ class Cn0TrackingParams:
 
 
 @dataclass(frozen=True)
+class LatencyParams:
+    """``latency``: the fix describes where the antenna was ``latency_s`` before its epoch."""
+
+    enabled: bool = False
+    latency_s: float = 0.1
+
+
+@dataclass(frozen=True)
+class NavFilterParams:
+    """``nav_filter``: the receiver's smoothing of its position, a first-order low-pass with
+    time constant ``tau_s`` (lags behind the truth when accelerating), restarted after a gap."""
+
+    enabled: bool = False
+    tau_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class StaticHoldParams:
+    """``static_hold``: MTK static navigation (``$PMTK386``): below ``threshold_mps`` the
+    output position stays where it was when the speed fell below it. MTK's default is 0.4 m/s
+    (PMTK386 documentation); 0 disables it as on the device."""
+
+    enabled: bool = False
+    threshold_mps: float = 0.4
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -180,6 +207,9 @@ class Profile:
     dop_error: DopErrorParams = field(default_factory=DopErrorParams)
     correlated_error: CorrelatedErrorParams = field(default_factory=CorrelatedErrorParams)
     cn0_tracking: Cn0TrackingParams = field(default_factory=Cn0TrackingParams)
+    latency: LatencyParams = field(default_factory=LatencyParams)
+    nav_filter: NavFilterParams = field(default_factory=NavFilterParams)
+    static_hold: StaticHoldParams = field(default_factory=StaticHoldParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -243,6 +273,9 @@ _TABLES = {
     "dop_error": DopErrorParams,
     "correlated_error": CorrelatedErrorParams,
     "cn0_tracking": Cn0TrackingParams,
+    "latency": LatencyParams,
+    "nav_filter": NavFilterParams,
+    "static_hold": StaticHoldParams,
 }
 
 
@@ -429,6 +462,11 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
     if ct.acq_dbhz < ct.track_dbhz or ct.fade_tau_s <= 0 or ct.reacq_s < 0:
         raise SettingError("cn0_tracking", "acq_dbhz", "need acq_dbhz >= track_dbhz, "
                            "fade_tau_s > 0 and reacq_s >= 0")
+    if prof.nav_filter.tau_s <= 0 or prof.latency.latency_s < 0 or (
+        prof.static_hold.threshold_mps < 0
+    ):
+        raise SettingError("nav_filter", "tau_s", "need nav_filter.tau_s > 0, "
+                           "latency.latency_s >= 0 and static_hold.threshold_mps >= 0")
     if ce.tau_s <= 0 or ce.sigma_m < 0:
         raise SettingError("correlated_error", "tau_s", "need tau_s > 0 and sigma_m >= 0")
     if prof.noise.min_noise_m < 0 or prof.noise.max_noise_m < prof.noise.min_noise_m:

@@ -68,6 +68,8 @@ class ReceiverState:
     gm_m : (n_sat,) or (3,) float, metres, the Gauss-Markov errors (``correlated_error``) after
         the last epoch, None before the first
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
+    nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
+    hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
     fade_db, tracked, acq_run : (n_sat,) the ``cn0_tracking`` state: C/N0 fades (dB), tracked
         flags, epochs spent at or above the acquisition threshold; None before the first epoch
     """
@@ -77,6 +79,8 @@ class ReceiverState:
     no_fix_until_t_unix_s: float = float("-inf")
     gm_m: np.ndarray | None = field(default=None, compare=False)
     last_alt_hae_m: float = float("nan")
+    nav_enu_m: np.ndarray | None = field(default=None, compare=False)
+    hold_enu_m: np.ndarray | None = field(default=None, compare=False)
     fade_db: np.ndarray | None = field(default=None, compare=False)
     tracked: np.ndarray | None = field(default=None, compare=False)
     acq_run: np.ndarray | None = field(default=None, compare=False)
@@ -521,6 +525,65 @@ def tracked_cn0(
     return out, tracked, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
 
 
+def output_stage(
+    prof: Profile,
+    truth_enu_m: np.ndarray,
+    err_enu_m: np.ndarray,
+    vel_enu_mps: np.ndarray,
+    dt_s: np.ndarray,
+    has_fix: np.ndarray,
+    state: ReceiverState,
+) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+    """What the receiver does to its solution before output: ``latency``, ``nav_filter``,
+    ``static_hold`` (in that order).
+
+    Parameters
+    ----------
+    prof : profile
+    truth_enu_m : (n_t, 3) metres, true antenna positions, scene ENU
+    err_enu_m : (n_t, 3) metres, the solution's error
+    vel_enu_mps : (n_t, 3) metres per second, true velocity
+    dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
+    has_fix : (n_t,) bool
+    state : receiver state before the batch
+
+    Returns
+    -------
+    err_enu_m : (n_t, 3) metres, error of the position output
+    state_update : new ``nav_enu_m`` and ``hold_enu_m``
+    """
+    out = truth_enu_m + err_enu_m
+    update: dict[str, np.ndarray | None] = {}
+    if prof.latency.enabled:  # the position latency_s ago, to first order in the velocity
+        out = out - vel_enu_mps * prof.latency.latency_s
+    if prof.nav_filter.enabled:
+        alpha = 1.0 - np.exp(-dt_s / prof.nav_filter.tau_s)  # inf step (first epoch): alpha 1
+        y = state.nav_enu_m
+        filt = np.empty_like(out)
+        for k in range(out.shape[0]):  # a recursion with restarts at gaps: short per epoch
+            if not has_fix[k]:
+                y = None
+                filt[k] = out[k]
+                continue
+            y = out[k] if y is None else y + alpha[k] * (out[k] - y)
+            filt[k] = y
+        out = filt
+        update["nav_enu_m"] = y
+    if prof.static_hold.enabled and prof.static_hold.threshold_mps > 0:
+        slow = has_fix & (np.hypot(vel_enu_mps[:, 0], vel_enu_mps[:, 1])
+                          < prof.static_hold.threshold_mps)
+        # Each slow run holds the output of its first epoch (or the held position carried in).
+        k = np.arange(out.shape[0])
+        start = np.maximum.accumulate(np.where(~slow, k + 1, 0))  # first epoch of the run
+        carry = state.hold_enu_m is not None
+        held = out[np.minimum(start, out.shape[0] - 1)]
+        if carry:
+            held = np.where((start == 0)[:, None], state.hold_enu_m, held)
+        out = np.where(slow[:, None], held, out)
+        update["hold_enu_m"] = out[-1].copy() if slow.size and slow[-1] else None
+    return out - truth_enu_m, update
+
+
 def _gm_start(state: ReceiverState, n: int) -> np.ndarray:
     """The Gauss-Markov state to continue from (zeros at the start: the first epoch's infinite
     step then draws it from the stationary distribution)."""
@@ -618,7 +681,9 @@ def simulate(
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)
-    north_m, east_m, up_m = err.enu_m[:, 1], err.enu_m[:, 0], err.enu_m[:, 2]
+    vel = np.nan_to_num(np.asarray(vel_enu_mps, dtype=float))
+    err_enu, out_state = output_stage(prof, ant, err.enu_m, vel, dt_s, has_fix, state)
+    north_m, east_m, up_m = err_enu[:, 1], err_enu[:, 0], err_enu[:, 2]
     if prof.georef == "flat_earth":
         lat, lon = geodesy.flat_earth_offset_deg(sky.lat_deg, sky.lon_deg, east_m, north_m)
     else:
@@ -636,7 +701,6 @@ def simulate(
     mode = np.where(has_fix, mode, MODE_NONE)
     geoid = geodesy.geoid_sep_m(lat, lon)
 
-    vel = np.nan_to_num(np.asarray(vel_enu_mps, dtype=float))
     speed = np.hypot(vel[:, 0], vel[:, 1])
     course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
 
@@ -673,5 +737,6 @@ def simulate(
         gm_m=err.gm_m,
         last_alt_hae_m=last_alt,
         **track_state,
+        **out_state,
     )
     return fixes, new_state
