@@ -341,3 +341,18 @@ def test_static_hold_freezes_the_output_below_the_threshold():
     assert np.ptp(fast.lon_deg) > 1e-6
     free, _ = _walk(load_profile("ideal", {"dop_error": {"enabled": True}}), 0.1)
     assert np.ptp(free.lat_deg) > 1e-6  # the same noise moves the fix without the hold
+
+
+def test_sbas_gives_quality_2_and_smaller_errors():
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    base = {"dop_error": {"enabled": True, "sis_m": 1.0, "iono_zenith_m": 2.0,
+                          "tropo_zenith_m": 0.0, "rx_noise_m": 0.0, "multipath_a_m": 0.0,
+                          "multipath_b_m": 0.0}}
+    plain, _ = _run(load_profile("ideal", base), sky, n_t=4000, seed=3)
+    sbas, _ = _run(load_profile("ideal", {**base, "sbas": {"enabled": True, "sis_factor": 0.5,
+                                                           "iono_factor": 0.5}}), sky,
+                   n_t=4000, seed=3)
+    assert (plain.quality == 1).all() and (sbas.quality == 2).all()
+    # Every UERE term halves, so (same seed, same geometry) every error halves exactly.
+    # (to 0.1 mm: metres become degrees by a first-order offset, good to d^2 / R)
+    np.testing.assert_allclose(_enu_errors(sbas), 0.5 * _enu_errors(plain), atol=1e-4)

@@ -183,6 +183,18 @@ class StaticHoldParams:
 
 
 @dataclass(frozen=True)
+class SbasParams:
+    """``sbas``: SBAS/WAAS corrections: GGA quality 2 (mode letter D), and with ``dop_error``
+    the signal-in-space and ionospheric range errors scaled by these factors (SBAS corrects
+    orbits, clocks and the ionosphere; residual ionosphere of the WAAS grid ~0.5 m vs a few
+    metres for the broadcast model: Misra & Enge, section 5.4)."""
+
+    enabled: bool = False
+    sis_factor: float = 0.5
+    iono_factor: float = 0.25
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -210,6 +222,7 @@ class Profile:
     latency: LatencyParams = field(default_factory=LatencyParams)
     nav_filter: NavFilterParams = field(default_factory=NavFilterParams)
     static_hold: StaticHoldParams = field(default_factory=StaticHoldParams)
+    sbas: SbasParams = field(default_factory=SbasParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -276,6 +289,7 @@ _TABLES = {
     "latency": LatencyParams,
     "nav_filter": NavFilterParams,
     "static_hold": StaticHoldParams,
+    "sbas": SbasParams,
 }
 
 

@@ -19,7 +19,15 @@ import numpy as np
 
 from virtualgps import errors, geodesy, signals
 from virtualgps.profiles import Profile
-from virtualgps.records import MODE_2D, MODE_3D, MODE_NONE, QUALITY_GPS, QUALITY_NONE, Fixes
+from virtualgps.records import (
+    MODE_2D,
+    MODE_3D,
+    MODE_NONE,
+    QUALITY_DGPS,
+    QUALITY_GPS,
+    QUALITY_NONE,
+    Fixes,
+)
 
 
 class Ephemeris(Protocol):
@@ -594,8 +602,9 @@ def _gm_start(state: ReceiverState, n: int) -> np.ndarray:
 
 def _uere_args(prof: Profile) -> tuple[float, ...]:
     d = prof.dop_error
-    return (d.sis_m, d.iono_zenith_m, d.tropo_zenith_m, d.rx_noise_m, d.multipath_a_m,
-            d.multipath_b_m)
+    sis_k, iono_k = (prof.sbas.sis_factor, prof.sbas.iono_factor) if prof.sbas.enabled else (1, 1)
+    return (d.sis_m * sis_k, d.iono_zenith_m * iono_k, d.tropo_zenith_m, d.rx_noise_m,
+            d.multipath_a_m, d.multipath_b_m)
 
 
 def hold_altitude(
@@ -713,7 +722,9 @@ def simulate(
         lon_deg=lon * nofix,
         alt_msl_m=(alt_hae - geoid) * nofix,
         geoid_sep_m=geoid,
-        quality=np.where(has_fix, QUALITY_GPS, QUALITY_NONE).astype(np.int8),
+        quality=np.where(
+            has_fix, QUALITY_DGPS if prof.sbas.enabled else QUALITY_GPS, QUALITY_NONE
+        ).astype(np.int8),
         mode=mode.astype(np.int8),
         hdop=hdop * nofix,
         vdop=vdop * nofix,
