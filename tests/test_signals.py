@@ -96,3 +96,113 @@ def test_fading_has_the_set_spread(sigma):
                         np.ones(n, bool), ReceiverState(), np.random.default_rng(1))
     spread = np.nanstd(fixes.cn0_dbhz[10:], axis=0)
     np.testing.assert_allclose(spread, sigma, atol=0.1 * max(sigma, 0.1))
+
+
+# Two parallel walls running east-west: A (the blocker) at north 0..0.5, 12 m high; B (the
+# reflector) at north 20..20.5, 30 m high. The antenna stands between them at north 10, 1.5 m
+# up. A satellite due south at 30 deg is blocked by A (its ray is 7 m up at A) but its
+# reflection off B's south face (d = 9.5 m... from the face at north 20) comes back over A
+# (its leg from B passes A 17 m up).
+TWO_WALLS_OBJ = """o WallA
+v -50 0 0
+v 50 0 0
+v 50 0 12
+v -50 0 12
+v -50 0.5 0
+v 50 0.5 0
+v 50 0.5 12
+v -50 0.5 12
+f 1 2 3 4
+f 5 6 7 8
+o WallB
+v -50 20 0
+v 50 20 0
+v 50 20 30
+v -50 20 30
+v -50 20.5 0
+v 50 20.5 0
+v 50 20.5 30
+v -50 20.5 30
+f 9 10 11 12
+f 13 14 15 16
+"""
+
+
+@pytest.fixture(scope="module")
+def two_walls(tmp_path_factory):
+    from virtualgps.scene import load_scene
+
+    d = tmp_path_factory.mktemp("two-walls")
+    (d / "walls.obj").write_text(TWO_WALLS_OBJ)
+    (d / "scene.toml").write_text(
+        'mesh = "walls.obj"\n[georef]\nlat_deg = 52.14\nlon_deg = 11.64\nalt_hae_m = 100.0\n'
+        '[axes]\neast = "+x"\nnorth = "+y"\nup = "+z"\n')
+    return load_scene(d)
+
+
+def test_nlos_excess_path_equals_the_image_method(two_walls):
+    from virtualgps import geodesy
+    from virtualgps.scene import CLASS_OCCLUDER
+
+    occ = two_walls.faces[two_walls.face_class == CLASS_OCCLUDER]
+    facades = signals.Facades(two_walls.vertices_enu_m, occ)
+    antenna = np.array([[3.0, 10.0, 1.5]])
+    el = 30.0
+    u = geodesy.azel_to_enu_unit(180.0, el)[None, :]
+    assert two_walls.blocked(antenna, u)[0]  # the direct path hits wall A
+    found, excess = signals.reflections(two_walls, facades, antenna, u, 50.0)
+    # Image antenna 2 d behind wall B's face (d = 20 - 10 = 10 m): excess 2 d cos(el).
+    assert found[0]
+    assert excess[0] == pytest.approx(2 * 10.0 * np.cos(np.radians(el)), abs=0.01)
+    # A satellite with its reflection point above wall B (too low a wall) or coming in
+    # from the north (behind the reflector) has no such path.
+    u_north = geodesy.azel_to_enu_unit(0.0, el)[None, :]
+    found_n, _ = signals.reflections(two_walls, facades, antenna, u_north, 50.0)
+    assert not found_n[0]
+    high = geodesy.azel_to_enu_unit(180.0, 75.0)[None, :]  # reflection point 38 m up: off B
+    assert not signals.reflections(two_walls, facades, antenna, high, 50.0)[0][0]
+    # Walls further than max_dist_m do not reflect.
+    assert not signals.reflections(two_walls, facades, antenna, u, 5.0)[0][0]
+
+
+def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls):
+    from virtualgps import geodesy
+    from virtualgps.receiver import Georef
+
+    g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
+
+    class Sky(FixedSky):  # satellites fixed in the sky of this scene's origin
+        def __init__(self, az, el):
+            super().__init__(az, el)
+            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
+            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+
+    # One satellite due south at 30 deg (blocked by A, reflected by B), four clear ones high.
+    sky = Sky([180.0, 0.0, 90.0, 200.0, 300.0], [30.0, 80.0, 70.0, 75.0, 72.0])
+    tiny = {k: 0.0 for k in ("iono_zenith_m", "tropo_zenith_m", "rx_noise_m", "multipath_a_m",
+                             "multipath_b_m")}
+    base = {"cn0_tracking": {"enabled": True, "fade_sigma_db": 0.0, "acq_dbhz": 20.0,
+                             "track_dbhz": 15.0, "reacq_s": 0.0, "cn0_zenith_dbhz": 45.0,
+                             "horizon_loss_db": 10.0},
+            "dop_error": {"enabled": True, "sis_m": 1e-9, **tiny}}  # errors: the NLOS bias only
+    with_nlos = load_profile("ideal", {**base, "nlos": {"enabled": True,
+                                                        "reflection_loss_db": 7.0}})
+    without = load_profile("ideal", base)
+    ant = np.array([[3.0, 10.0, 1.5]] * 3)
+    args = (1.49e9 + np.arange(3.0), ant, np.zeros((3, 3)), np.ones(3, bool), ReceiverState())
+    on, _ = simulate(Receiver(with_nlos, sky, two_walls, g), *args, np.random.default_rng(0))
+    off, _ = simulate(Receiver(without, sky, two_walls, g), *args, np.random.default_rng(0))
+    assert np.isnan(off.cn0_dbhz[:, 0]).all() and not off.used[:, 0].any()
+    los_cn0 = 45.0 - 10.0 * (1 - np.sin(np.radians(30.0)))
+    np.testing.assert_allclose(on.cn0_dbhz[:, 0], los_cn0 - 7.0, atol=1e-3)
+    assert on.used[:, 0].all()
+    # The fix moves by the least-squares solution of a bias of 2 d cos(el) on that satellite.
+    excess = 2 * 10.0 * np.cos(np.radians(30.0))
+    los = geodesy.azel_to_enu_unit(sky.az_deg, sky.el_deg)
+    gmat = np.c_[-los, np.ones(5)]
+    expect = np.linalg.lstsq(gmat, np.r_[excess, 0, 0, 0, 0], rcond=None)[0][:3]
+    truth = geodesy.geodetic_to_ecef(on.truth_lat_deg, on.truth_lon_deg, on.truth_alt_hae_m)
+    rep = geodesy.geodetic_to_ecef(on.lat_deg, on.lon_deg, on.alt_msl_m + on.geoid_sep_m)
+    err = geodesy.ecef_to_enu(rep, g.lat0_deg, g.lon0_deg, g.alt0_hae_m) - geodesy.ecef_to_enu(
+        truth, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+    np.testing.assert_allclose(err, np.broadcast_to(expect, err.shape), atol=0.01)

@@ -154,6 +154,7 @@ class Receiver:
         simulated time lies far from the TLE epoch)
     origin_ecef_m : (3,) ECEF of the georeference point (derived)
     origin_rot : (3, 3) ECEF -> scene ENU rotation (derived; rows E, N, U)
+    facades : the scene's reflecting walls when the profile models ``nlos`` (derived)
     """
 
     profile: Profile
@@ -163,6 +164,7 @@ class Receiver:
     sky_shift_s: float = 0.0
     origin_ecef_m: np.ndarray = field(init=False, repr=False, compare=False)
     origin_rot: np.ndarray = field(init=False, repr=False, compare=False)
+    facades: signals.Facades | None = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         g = self.georef
@@ -172,6 +174,14 @@ class Receiver:
             self, "origin_ecef_m", geodesy.geodetic_to_ecef(g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
         )
         object.__setattr__(self, "origin_rot", geodesy.ecef_to_enu_matrix(g.lat0_deg, g.lon0_deg))
+        facades = None
+        faces = getattr(self.scene, "faces", None)
+        if self.profile.nlos.enabled and faces is not None and len(faces):
+            from virtualgps.scene import CLASS_OCCLUDER
+
+            occ = faces[self.scene.face_class == CLASS_OCCLUDER]
+            facades = signals.Facades(self.scene.vertices_enu_m, occ)
+        object.__setattr__(self, "facades", facades)
 
 
 @dataclass(frozen=True)
@@ -184,6 +194,8 @@ class Sky:
     los_enu : (..., n_t, n_sat, 3) unit vectors antenna -> satellite, antenna ENU frame
     above_mask : (..., n_t, n_sat) bool, elevation >= the profile's mask
     blocked : (..., n_t, n_sat) bool, line of sight hits an occluder (False below the mask)
+    nlos : (..., n_t, n_sat) bool, blocked but received off a facade (``nlos`` effect)
+    excess_m : (..., n_t, n_sat) float, metres, the reflected path's extra length (0 if direct)
     """
 
     lat_deg: np.ndarray
@@ -194,6 +206,8 @@ class Sky:
     los_enu: np.ndarray
     above_mask: np.ndarray
     blocked: np.ndarray
+    nlos: np.ndarray
+    excess_m: np.ndarray
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
@@ -328,7 +342,17 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         if rx.profile.sky.foliage == "block":
             hit = hit | rx.scene.blocked(origins, dirs, cls="foliage")
         blocked[idx] = hit
-    return Sky(lat, lon, alt, az, el, los_enu, above, blocked)
+    nlos = np.zeros_like(blocked)
+    excess = np.zeros(blocked.shape)
+    if rx.facades is not None and blocked.any():
+        idx = np.nonzero(blocked)
+        dirs = u_ecef[idx] @ rx.origin_rot.T
+        origins = np.broadcast_to(ant[..., None, :], blocked.shape + (3,))[idx]
+        found, ex = signals.reflections(rx.scene, rx.facades, origins, dirs,
+                                        rx.profile.nlos.max_dist_m)
+        nlos[idx] = found
+        excess[idx] = np.where(found, ex, 0.0)
+    return Sky(lat, lon, alt, az, el, los_enu, above, blocked, nlos, excess)
 
 
 def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.ndarray:
@@ -485,6 +509,7 @@ def position_errors(
             eps = corr_range + prof.dop_error.rx_noise_m * z
         else:
             eps = sigma_i * z
+        eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
         e3 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=4)
         e2 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=3)
         two_d = n_used == 3
@@ -522,7 +547,9 @@ def tracked_cn0(
                                z[:, :n_sat])
     cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
     above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
-    cn0 = np.where(above & ~sky.blocked, cn0, -np.inf)  # blocked: no signal (no NLOS model)
+    # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
+    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0)
+    cn0 = np.where(above & (~sky.blocked | sky.nlos), cn0, -np.inf)
     finite_dt = dt_s[np.isfinite(dt_s)]
     step_s = float(np.median(finite_dt)) if finite_dt.size else 1.0 / prof.rate_hz
     reacq = max(1, int(np.ceil(ct.reacq_s / step_s - 1e-9)))
@@ -676,7 +703,7 @@ def simulate(
         seen = tracked & sky.above_mask & pose_valid[:, None]
     else:
         track_state = {}
-        seen = sky.above_mask & ~sky.blocked & pose_valid[:, None]
+        seen = sky.above_mask & (~sky.blocked | sky.nlos) & pose_valid[:, None]
         cn0 = cn0_from_elevation_dbhz(
             sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
         )
