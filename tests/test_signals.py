@@ -144,8 +144,9 @@ def test_nlos_excess_path_equals_the_image_method(two_walls):
     from virtualgps import geodesy
     from virtualgps.scene import CLASS_OCCLUDER
 
-    occ = two_walls.faces[two_walls.face_class == CLASS_OCCLUDER]
-    facades = signals.Facades(two_walls.vertices_enu_m, occ)
+    sel = two_walls.face_class == CLASS_OCCLUDER
+    facades = signals.Facades(two_walls.vertices_enu_m, two_walls.faces[sel],
+                              two_walls.face_object[sel])
     antenna = np.array([[3.0, 10.0, 1.5]])
     el = 30.0
     u = geodesy.azel_to_enu_unit(180.0, el)[None, :]

@@ -179,8 +179,9 @@ class Receiver:
         if self.profile.nlos.enabled and faces is not None and len(faces):
             from virtualgps.scene import CLASS_OCCLUDER
 
-            occ = faces[self.scene.face_class == CLASS_OCCLUDER]
-            facades = signals.Facades(self.scene.vertices_enu_m, occ)
+            sel = self.scene.face_class == CLASS_OCCLUDER
+            facades = signals.Facades(self.scene.vertices_enu_m, faces[sel],
+                                      self.scene.face_object[sel])
         object.__setattr__(self, "facades", facades)
 
 

@@ -90,44 +90,99 @@ def track(
 # NLOS: specular reflections off vertical facades (image method).
 
 
+INDEX_STEP_M = 5.0
+
+
 class Facades:
-    """The near-vertical occluder triangles of a scene, for the image method.
+    """The near-vertical occluder walls of a scene, merged into planes, for the image method.
+
+    Triangles are grouped by object and plane (normal azimuth to 0.5 deg, offset to 0.1 m): a
+    building side made of many triangles is one reflector. Whether the reflection point really
+    lies on a wall is checked by a ray (the first occluder along the reflected direction must
+    be at the plane), so the grouping only has to be generous, never exact.
 
     Attributes
     ----------
-    v0, e1, e2 : (n, 3) float, metres, scene ENU: a vertex and the two edges of each triangle
     normal : (n, 3) float, horizontal unit normals (sign arbitrary; oriented per antenna)
-    tree : scipy cKDTree over the triangles' horizontal centroids
-    radius_m : (n,) float, metres, horizontal distance from each centroid to its farthest vertex
+    offset_m : (n,) float, metres, plane offsets: normal . x = offset on the plane
+    lo_m, hi_m : (n, 3) float, metres, scene ENU bounding box of each plane's triangles
+    index_xy, index_owner : points every INDEX_STEP_M along the planes' footprints, and their
+        plane; tree : scipy cKDTree over ``index_xy``
     """
 
-    def __init__(self, vertices_enu_m: np.ndarray, faces: np.ndarray, max_tilt_deg: float = 10.0):
+    def __init__(
+        self,
+        vertices_enu_m: np.ndarray,
+        faces: np.ndarray,
+        face_object: np.ndarray | None = None,
+        max_tilt_deg: float = 10.0,
+    ) -> None:
         from scipy.spatial import cKDTree
 
         tri = vertices_enu_m[faces]  # (n, 3, 3)
-        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        nrm = np.cross(e1, e2)
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(nrm, axis=1)
         ok = length > 1e-9
         nrm[ok] /= length[ok, None]
         vertical = ok & (np.abs(nrm[:, 2]) < np.sin(np.radians(max_tilt_deg)))
-        self.v0, self.e1, self.e2 = tri[vertical, 0], e1[vertical], e2[vertical]
-        n_h = nrm[vertical].copy()
-        n_h[:, 2] = 0.0
-        self.normal = n_h / np.linalg.norm(n_h, axis=1, keepdims=True)
-        centroid = tri[vertical].mean(axis=1)
-        self.radius_m = np.linalg.norm(tri[vertical, :, :2] - centroid[:, None, :2], axis=2).max(1)
-        self.tree = cKDTree(centroid[:, :2]) if len(centroid) else None
-        self._max_radius_m = float(self.radius_m.max()) if len(centroid) else 0.0
+        tri, nrm = tri[vertical], nrm[vertical]
+        obj = (np.zeros(len(faces), int) if face_object is None else face_object)[vertical]
+        az = np.degrees(np.arctan2(nrm[:, 0], nrm[:, 1])) % 180.0  # one sign per plane
+        nh = np.stack([np.sin(np.radians(az)), np.cos(np.radians(az)), np.zeros_like(az)], 1)
+        off = np.einsum("ij,ij->i", tri[:, 0], nh)
+        key = np.stack([obj, np.round(az / 0.5) % 360, np.round(off / 0.1)], axis=1)
+        _, plane, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        n_planes = len(counts)
+        self.normal = np.zeros((n_planes, 3))
+        np.add.at(self.normal, plane, nh)
+        self.normal /= np.maximum(np.linalg.norm(self.normal, axis=1, keepdims=True), 1e-12)
+        self.offset_m = np.zeros(n_planes)
+        np.add.at(self.offset_m, plane, off)
+        self.offset_m /= np.maximum(counts, 1)
+        self.lo_m = np.full((n_planes, 3), np.inf)
+        self.hi_m = np.full((n_planes, 3), -np.inf)
+        np.minimum.at(self.lo_m, plane, tri.min(axis=1))
+        np.maximum.at(self.hi_m, plane, tri.max(axis=1))
+        # Index the planes by points along their footprints (a long wall is found from anywhere
+        # along it); the footprint runs along the wall, perpendicular to its normal.
+        along = np.stack([self.normal[:, 1], -self.normal[:, 0]], axis=1)
+        corners = np.stack([self.lo_m[:, :2], self.hi_m[:, :2]], axis=1)  # (n, 2, 2)
+        s = np.einsum("ikj,ij->ik", corners, along)
+        ends_s = np.sort(s, axis=1)
+        base = self.offset_m[:, None] * self.normal[:, :2]
+        n_pts = np.maximum(1, np.ceil((ends_s[:, 1] - ends_s[:, 0]) / INDEX_STEP_M)).astype(int)
+        owner = np.repeat(np.arange(n_planes), n_pts + 1)
+        frac = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n_pts]) if n_planes else \
+            np.zeros(0)
+        pos = ends_s[owner, 0] + frac * (ends_s[owner, 1] - ends_s[owner, 0])
+        self.index_xy = base[owner] + pos[:, None] * along[owner]
+        self.index_owner = owner
+        self.tree = cKDTree(self.index_xy) if len(owner) else None
 
     def __len__(self) -> int:
-        return len(self.v0)
+        return len(self.normal)
 
-    def near(self, xy_m: np.ndarray, max_dist_m: float) -> list[list[int]]:
-        """Indices of the triangles within ``max_dist_m`` (horizontally) of each point."""
-        if self.tree is None:
-            return [[] for _ in range(len(xy_m))]
-        return self.tree.query_ball_point(xy_m, max_dist_m + self._max_radius_m)
+    def near(self, xy_m: np.ndarray, max_dist_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (query, plane) of walls within about ``max_dist_m`` of each point.
+
+        Parameters
+        ----------
+        xy_m : (m, 2) metres, scene east/north
+        max_dist_m : metres
+
+        Returns
+        -------
+        query, plane : (k,) int, unique pairs
+        """
+        from scipy.spatial import cKDTree
+
+        if self.tree is None or len(xy_m) == 0:
+            return np.zeros(0, int), np.zeros(0, int)
+        pairs = cKDTree(xy_m).sparse_distance_matrix(
+            self.tree, max_dist_m + INDEX_STEP_M, output_type="ndarray"
+        )
+        key = np.unique(pairs["i"].astype(np.int64) * len(self) + self.index_owner[pairs["j"]])
+        return key // len(self), key % len(self)
 
 
 def reflections(
@@ -137,15 +192,16 @@ def reflections(
     sat_dir_enu: np.ndarray,
     max_dist_m: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Specular single-bounce paths from far satellites to antennas off vertical facades.
+    """Specular single-bounce paths from far satellites to antennas off vertical walls.
 
     For a wall with unit normal n facing the antenna at distance d, a satellite in direction u
     on the antenna's side (u . n > 0) reflects to the antenna from the mirrored direction
-    r = u - 2 (u . n) n, off the point P = a + r d / (-r . n); the reflected signal travels
+    r = u - 2 (u . n) n, off the point P = a + r d / (u . n); the reflected signal travels
     2 d (u . n) further than a direct one would (the image antenna a' = a - 2 d n sees the
-    satellite at that extra range; far-field, plane wave). A path counts when P lies on the
-    triangle, nothing blocks antenna -> P (the first occluder hit along r is P) and nothing
-    blocks P -> satellite. Of several paths the shortest is kept (the strongest, usually).
+    satellite at that extra range; far field, plane wave). A path counts when P lies in the
+    wall's bounding box, the first occluder along r is at P (the wall is really there and
+    nothing blocks antenna -> P) and nothing blocks P -> satellite. Of several paths the
+    shortest is kept (usually the strongest).
 
     Parameters
     ----------
@@ -153,7 +209,7 @@ def reflections(
     facades : its :class:`Facades`
     antenna_enu_m : (m, 3) metres, scene ENU, one antenna per query
     sat_dir_enu : (m, 3) unit vectors antenna -> satellite, scene ENU
-    max_dist_m : only walls closer than this (horizontally) reflect
+    max_dist_m : only walls closer than this reflect
 
     Returns
     -------
@@ -165,51 +221,50 @@ def reflections(
     excess = np.full(m, np.nan)
     if m == 0 or len(facades) == 0:
         return found, excess
-    lists = facades.near(antenna_enu_m[:, :2], max_dist_m)
-    q = np.repeat(np.arange(m), [len(c) for c in lists])
-    if q.size == 0:
+    # Spatial query once per distinct antenna position (many satellites share one).
+    xy, inverse = np.unique(np.round(antenna_enu_m[:, :2], 3), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    qa, j_a = facades.near(xy, max_dist_m)
+    if qa.size == 0:
         return found, excess
-    j = np.concatenate([np.asarray(c, dtype=int) for c in lists])
+    # Expand (antenna, plane) pairs to (query, plane) pairs.
+    order = np.argsort(inverse, kind="stable")
+    starts = np.searchsorted(inverse[order], np.arange(len(xy)))
+    counts = np.bincount(inverse, minlength=len(xy))
+    rep = counts[qa]
+    q = order[np.repeat(starts[qa], rep) + _ranges(rep)]
+    j = np.repeat(j_a, rep)
     a, u = antenna_enu_m[q], sat_dir_enu[q]
     n = facades.normal[j]
-    d = np.einsum("ij,ij->i", a - facades.v0[j], n)
+    d = np.einsum("ij,ij->i", a, n) - facades.offset_m[j]
     n = n * np.sign(d)[:, None]  # face the antenna
     d = np.abs(d)
     un = np.einsum("ij,ij->i", u, n)
     ok = (un > 1e-6) & (d > 0.05) & (d <= max_dist_m)
+    t = d / np.maximum(un, 1e-12)
     r = u - 2.0 * un[:, None] * n
-    t = d / np.maximum(un, 1e-12)  # -r . n = u . n
     p = a + r * t[:, None]
-    # Barycentric test: P on the triangle.
-    w = p - facades.v0[j]
-    e1, e2 = facades.e1[j], facades.e2[j]
-    d11 = np.einsum("ij,ij->i", e1, e1)
-    d12 = np.einsum("ij,ij->i", e1, e2)
-    d22 = np.einsum("ij,ij->i", e2, e2)
-    w1 = np.einsum("ij,ij->i", w, e1)
-    w2 = np.einsum("ij,ij->i", w, e2)
-    den = d11 * d22 - d12**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        b1 = (d22 * w1 - d12 * w2) / den
-        b2 = (d11 * w2 - d12 * w1) / den
-    tol = 1e-6
-    ok &= (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1 + tol)
+    slack = 0.05
+    ok &= np.all((p >= facades.lo_m[j] - slack) & (p <= facades.hi_m[j] + slack), axis=1)
     idx = np.flatnonzero(ok)
     if idx.size == 0:
         return found, excess
-    # Leg 1: the first occluder along r is this wall (nothing in between).
+    # Leg 1: the first occluder along r is this wall (nothing in between, and the wall is there).
     hit = scene.hit_distance_m(a[idx], r[idx])
-    leg1 = np.abs(hit - t[idx]) < 0.02 + 1e-4 * t[idx]
-    idx = idx[leg1]
+    idx = idx[np.abs(hit - t[idx]) < 0.02 + 1e-4 * t[idx]]
     # Leg 2: open sky from the reflection point (nudged off the wall) to the satellite.
-    leg2 = ~scene.blocked(p[idx] + 0.05 * n[idx], u[idx])
-    idx = idx[leg2]
+    idx = idx[~scene.blocked(p[idx] + 0.05 * n[idx], u[idx])]
     ex = 2.0 * d[idx] * un[idx]
-    # Shortest path per query.
-    order = np.lexsort((ex, q[idx]))
+    order = np.lexsort((ex, q[idx]))  # shortest path per query first
     idx, ex = idx[order], ex[order]
     first = np.ones(idx.size, bool)
     first[1:] = q[idx][1:] != q[idx][:-1]
     found[q[idx][first]] = True
     excess[q[idx][first]] = ex[first]
     return found, excess
+
+
+def _ranges(counts: np.ndarray) -> np.ndarray:
+    """Concatenated aranges: [0..c0), [0..c1), ... for counts c."""
+    ends = np.cumsum(counts)
+    return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts, counts)
