@@ -15,14 +15,14 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
 
-from virtualgps import nmea, pose
+from virtualgps import mtk, nmea, pose
 from virtualgps.exceptions import PoseError
-from virtualgps.receiver import Georef, Receiver, ReceiverState, simulate
+from virtualgps.receiver import Georef, Receiver, initial_state, restart, simulate
 from virtualgps.records import Fixes
 
 log = logging.getLogger(__name__)
@@ -213,13 +213,54 @@ class LiveProvider:
 
 @dataclass
 class DaemonStats:
-    """Counters the status line and the exit summary show."""
+    """Counters the status line and the exit summary show.
+
+    link : the MTK command link (its ``settings`` are what the client set: fix interval, baud,
+        sentence rates, SBAS, static-navigation threshold), or None without one
+    """
 
     epochs: int = 0
     fixes: int = 0
     late_epochs: int = 0
     skipped_epochs: int = 0
     max_lateness_s: float = 0.0
+    link: mtk.MtkLink | None = None
+
+
+def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
+    """The profile's command link: an :class:`~virtualgps.mtk.MtkLink` for ``mtk``, else None.
+
+    Parameters
+    ----------
+    profile : the receiver profile (``command_link``, ``firmware``, ``rate_hz``, ``baud``)
+    fmt : its output format (the sentences and their rates at power-on)
+
+    Returns
+    -------
+    link : MtkLink or None
+    """
+    if getattr(profile, "command_link", "none") != "mtk":
+        return None
+    defaults = mtk.default_settings(fmt.sentences, dict(fmt.every), profile.rate_hz, profile.baud)
+    return mtk.MtkLink(defaults, profile.firmware)
+
+
+def _format_for(
+    base: nmea.NmeaFormat, settings: mtk.MtkSettings, defaults: mtk.MtkSettings, rate_hz: float
+) -> nmea.NmeaFormat | None:
+    """The output format under the link's sentence rates (None: every sentence switched off)."""
+    if settings.rates == defaults.rates:
+        return replace(base, fix_rate_hz=rate_hz)
+    sentences = mtk.sentence_order(base.sentences, settings)
+    if not sentences:
+        return None
+    enabled = settings.sentence_every()
+    every = dict(base.every)
+    every.update({s: n for s, n in enabled.items() if s in sentences})
+    every = {s: n for s, n in every.items() if s in sentences and n > 1}
+    return replace(
+        base, sentences=sentences, every=tuple(sorted(every.items())), fix_rate_hz=rate_hz
+    )
 
 
 def run_daemon(
@@ -232,54 +273,124 @@ def run_daemon(
     stop: threading.Event,
     on_epoch: Callable[[Fixes, DaemonStats], None] | None = None,
     max_epochs: int | None = None,
+    link: mtk.MtkLink | None | str = "profile",
 ) -> DaemonStats:
     """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs).
+
+    With an MTK command link, ``$PMTK010,001`` goes out before the first epoch; what the client
+    writes is read as soon as it arrives (the device's descriptor is in the ``select``), answered
+    at once between epochs (a reply is queued whole, after any epoch already queued, so it never
+    splits an epoch), and applied: restarts (no fix until the start's TTFF), fix interval
+    (epochs on multiples of the new interval), baud (the device's pacing or port speed),
+    sentence rates. SBAS and the static-navigation threshold are kept in ``stats.link.settings``.
+    Without a link the client's bytes are read and discarded.
 
     Parameters
     ----------
     rx : the receiver
     provider : pose source
-    device : output device (``write_epoch``, ``read_available``), never blocking
+    device : output device (``write_epoch``, ``read_available``; optional ``fileno`` and
+        ``set_baud``), never blocking
     fmt : NMEA format
     clock : the simulated clock
     rng : random generator
     stop : set by the signal handlers to end the loop
     on_epoch : called after each epoch with its Fixes and the counters
     max_epochs : stop after this many epochs (tests)
+    link : the command link; ``"profile"`` (default) makes the profile's (see
+        :func:`make_link`), None for none
 
     Returns
     -------
     stats : DaemonStats
     """
-    rate = rx.profile.rate_hz
-    state = ReceiverState()
-    stats = DaemonStats()
-    k = math.ceil(clock.now_unix_s() * rate)
+    prof = rx.profile
+    if isinstance(link, str):
+        link = make_link(prof, fmt)
+    base_fmt = fmt
+    rate = prof.rate_hz
+    stats = DaemonStats(link=link)
+    state = initial_state(prof, clock.now_unix_s(), rng)
+    if link is not None:
+        device.write_epoch(link.startup().encode("ascii"))
+    get_fd = getattr(device, "fileno", None)
+    recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs (too-fast check)
+    out_fmt: nmea.NmeaFormat | None = fmt
+    t_last: float | None = None
+    applied = link.settings if link is not None else None  # the settings in effect
+
+    def next_k(r: float) -> int:
+        """Index of the next epoch at rate ``r``: after the last one, not in the past."""
+        k_now = math.ceil(clock.now_unix_s() * r - 1e-9)
+        if t_last is None:
+            return k_now
+        return max(math.floor(t_last * r + 1e-6) + 1, k_now)
+
+    def service_client() -> None:
+        """Read what the client wrote; with a link answer and apply it."""
+        nonlocal state, rate, out_fmt, k, applied
+        data = device.read_available()
+        if link is None or applied is None or not data:
+            return
+        for resp in link.feed(data, max(recent_sizes, default=0)):
+            old = applied
+            if resp.replies:
+                device.write_epoch("".join(resp.replies).encode("ascii"))
+            if resp.restart is not None:
+                state = restart(state, resp.restart, clock.now_unix_s(), prof, rng)
+                log.info("client commanded a %s start", resp.restart)
+            new = applied = resp.settings
+            if new is old:
+                continue
+            if new.baud != old.baud:
+                set_baud = getattr(device, "set_baud", None)
+                if set_baud is not None:
+                    set_baud(new.baud)
+                log.info("client set the baud rate to %d", new.baud)
+            if new.fix_interval_ms != old.fix_interval_ms:
+                rate = (
+                    prof.rate_hz
+                    if new.fix_interval_ms == link.defaults.fix_interval_ms
+                    else new.rate_hz
+                )
+                k = next_k(rate)
+                log.info("client set the fix interval to %d ms", new.fix_interval_ms)
+            if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
+                out_fmt = _format_for(base_fmt, new, link.defaults, rate)
+
+    k = next_k(rate)
     while not stop.is_set():
-        t_epoch = k / rate
-        deadline = clock.monotonic_at(t_epoch)
-        # Wait for the epoch, reading poses as they come.
+        # Wait for the epoch, reading poses and the client's commands as they come.
         while not stop.is_set():
             provider.pump()
+            service_client()
+            deadline = clock.monotonic_at(k / rate)  # k and rate may change in service_client
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 break
             timeout = min(remaining, 0.1)
             fds = provider.fileno_list()  # stdin drops out at end of input
+            dev_fd = get_fd() if get_fd is not None else None
+            if dev_fd is not None:
+                fds = [*fds, dev_fd]
             if fds:
                 select.select(fds, [], [], timeout)
             else:
                 stop.wait(timeout)
         if stop.is_set():
             break
+        t_epoch = k / rate
         lateness = time.monotonic() - deadline
         if lateness > 0.5 / rate:
             stats.late_epochs += 1
         stats.max_lateness_s = max(stats.max_lateness_s, lateness)
         pos, vel, valid = provider.pose_at(np.array([t_epoch]))
         fixes, state = simulate(rx, np.array([t_epoch]), pos, vel, valid, state, rng)
-        device.write_epoch(nmea.epoch_sentences(fixes, 0, fmt))
-        device.read_available()  # what the client wrote (gpsd's probes); the MTK link comes later
+        if out_fmt is not None:
+            data = nmea.epoch_sentences(fixes, 0, out_fmt)
+            device.write_epoch(data)
+            recent_sizes.append(len(data))
+        t_last = t_epoch
         stats.epochs += 1
         stats.fixes += int(fixes.quality[0] > 0)
         if on_epoch is not None:

@@ -174,6 +174,16 @@ class OutputDevice(_Closing, abc.ABC):
         """
         return None
 
+    def set_baud(self, baud: int) -> None:
+        """Change the line rate at run time (a client's ``$PMTK251``); no-op where there is none.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, 8N1.
+        """
+        return None
+
     @abc.abstractmethod
     def close(self) -> None:
         """Release the device; calling it again does nothing."""
@@ -527,6 +537,40 @@ class PtyDevice(OutputDevice):
         """Return an event descriptor readable while client bytes wait for read_available."""
         return None if self._closed else self._rx_event
 
+    def set_baud(self, baud: int) -> None:
+        """Pace output at ``baud`` from now on (bytes already queued included).
+
+        The slave's termios speed follows where ``baud`` is a standard rate; the pty itself
+        passes bytes at any speed, so the pacing is what a client notices.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, 8N1; positive.
+
+        Raises
+        ------
+        ConfigError
+            For a baud that is not a positive integer.
+        """
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        with self._lock:
+            self.baud = baud
+            self._bytes_per_s = baud / 10.0
+            self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
+            self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * _CHUNK_S)))
+            self._queue.max_bytes = self.max_backlog_bytes
+        speed = getattr(termios, f"B{baud}", None)
+        if speed is not None and not self._closed:
+            try:
+                attrs = termios.tcgetattr(self._master)
+                attrs[4] = attrs[5] = speed
+                termios.tcsetattr(self._master, termios.TCSANOW, attrs)
+            except (OSError, termios.error) as exc:
+                log.debug("cannot set the speed of %s: %s", self.slave_path, exc)
+        self._signal(self._wake)
+
     def termios_baud(self) -> int | None:
         """Return the speed currently set on the slave (a client may change it), in baud.
 
@@ -798,6 +842,7 @@ class SerialDevice(OutputDevice):
         self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
         self._lock = threading.Lock()
         self._has_data = threading.Condition(self._lock)
+        self._pending_baud: int | None = None
         self._closed = False
         self._port_dropped_bytes = 0
         self.written_bytes = 0
@@ -910,6 +955,44 @@ class SerialDevice(OutputDevice):
         with contextlib.suppress(serial.SerialException, OSError):
             self._serial.close()
 
+    def set_baud(self, baud: int) -> None:
+        """Switch the port to ``baud`` once what is queued now has been sent.
+
+        The writer applies it when its queue runs empty, after the port has transmitted
+        everything (``flush``), so a reply queued before (the ``$PMTK001`` of a ``$PMTK251``)
+        leaves at the old rate, as a receiver acknowledges before it switches.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, positive.
+
+        Raises
+        ------
+        ConfigError
+            For a baud that is not a positive integer.
+        """
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        with self._has_data:
+            self._pending_baud = baud
+            self._has_data.notify()
+
+    def _apply_baud(self, baud: int) -> None:
+        try:
+            self._serial.flush()
+            self._serial.baudrate = baud
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._log_error("changing the baud rate", exc)
+        with self._lock:
+            if self._pending_baud == baud:
+                self._pending_baud = None
+            self.baud = baud
+            bytes_per_s = baud / 10.0
+            self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
+            self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
+            self._queue.max_bytes = self.max_backlog_bytes
+
     def _log_error(self, what: str, exc: BaseException) -> None:
         if not self._error_logged:
             self._error_logged = True
@@ -925,10 +1008,14 @@ class SerialDevice(OutputDevice):
         try:
             while True:
                 with self._has_data:
-                    while self.alive and not self._queue:
+                    while self.alive and not self._queue and self._pending_baud is None:
                         self._has_data.wait()
                     if not self.alive:
                         return
+                    pending = self._pending_baud if not self._queue else None
+                if pending is not None:
+                    self._apply_baud(pending)
+                    continue
                 waiting = self._port_backlog()
                 if waiting > self.max_backlog_bytes:
                     # Output the line could not send in max_backlog_s: stale, discard it.
