@@ -230,3 +230,21 @@ def test_ideal_replay_reports_the_true_position(tmp_path):
         alt_hae = float(r["alt_msl_m"]) + float(r["geoid_sep_m"])
         assert alt_hae == pytest.approx(float(r["truth_alt_hae_m"]), abs=1e-3)
     assert np.isclose(float(rows[0]["speed_mps"]), 1.4)
+
+
+def test_sky_reports_nlos_with_its_weaker_cn0(tmp_path, capsys):
+    cfg = tmp_path / "nlos.toml"
+    cfg.write_text("[nlos]\nenabled = true\nreflection_loss_db = 7.0\n")
+    args = ["sky", "--time", "2017-03-28T14:52:48Z", "--at=-60,-80,55", "--json"]
+    assert main(args + ["--config", str(cfg)]) == 0
+    rows = {r["prn"]: r for r in json.loads(capsys.readouterr().out)}
+    assert main(args) == 0
+    plain = {r["prn"]: r for r in json.loads(capsys.readouterr().out)}
+    nlos = [p for p, r in rows.items() if r["state"] == "nlos"]
+    assert nlos, "a reflected satellite between the campus buildings"
+    for p in nlos:
+        assert plain[p]["state"] == "blocked" and plain[p]["cn0_dbhz"] is None
+        assert rows[p]["cn0_dbhz"] is not None
+    for p, r in rows.items():  # the effect changes nothing else
+        if p not in nlos:
+            assert r == plain[p]

@@ -237,6 +237,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.end()
         device.close()
         provider.close()
+    if stats.link is not None:
+        log.info(
+            "MTK command link: %d commands answered, %d with a wrong checksum ignored; "
+            "settings at exit: %s",
+            stats.link.commands,
+            stats.link.bad_checksum,
+            stats.link.settings,
+        )
     bad = getattr(provider, "bad", None)
     log.info(
         "stopped after %d epochs (%d with a fix, %d late, %d skipped)%s",
@@ -347,33 +355,33 @@ def cmd_sky(args: argparse.Namespace) -> int:
 
 
 def sky_rows(rx, sky) -> list[dict[str, Any]]:
-    """One row per satellite above the horizon: prn, az_deg, el_deg, state (+ cn0_dbhz)."""
-    from virtualgps.receiver import cn0_from_elevation_dbhz
+    """One row per satellite above the horizon: prn, az_deg, el_deg, state, cn0_dbhz.
 
+    States: ``below_mask`` (above the horizon, below the mask), ``blocked`` (line of sight
+    hits an occluder, no signal), ``nlos`` (blocked, received off a wall: the ``nlos`` effect),
+    ``visible``. ``cn0_dbhz`` is the arriving signal's C/N0 without fading (null where none).
+    """
+    from virtualgps.receiver import expected_cn0_dbhz
+
+    cn0 = expected_cn0_dbhz(rx.profile, sky)
     rows = []
-    sig = rx.profile.signal
     for j, prn in enumerate(np.asarray(rx.ephemeris.prn).tolist()):
         el = float(sky.el_deg[0, j])
         if not np.isfinite(el) or el < 0.0:
             continue
         if not sky.above_mask[0, j]:
             state = "below_mask"
+        elif sky.nlos[0, j]:
+            state = "nlos"
         elif sky.blocked[0, j]:
             state = "blocked"
         else:
             state = "visible"
-        row: dict[str, Any] = {
-            "prn": int(prn),
-            "az_deg": round(float(sky.az_deg[0, j]), 3),
-            "el_deg": round(el, 3),
-            "state": state,
-        }
-        row["cn0_dbhz"] = (
-            round(float(cn0_from_elevation_dbhz(el, sig.cn0_horizon_dbhz, sig.cn0_zenith_dbhz)), 1)
-            if state == "visible"
-            else None
-        )
-        rows.append(row)
+        c = float(cn0[0, j])
+        rows.append({"prn": int(prn), "az_deg": round(float(sky.az_deg[0, j]), 3),
+                     "el_deg": round(el, 3), "state": state,
+                     "cn0_dbhz": round(c, 1) if np.isfinite(c) and state != "below_mask"
+                     else None})
     return sorted(rows, key=lambda r: -r["el_deg"])
 
 

@@ -520,6 +520,31 @@ def position_errors(
     return PositionErrors(enu, three_d, two_d, gm_state)
 
 
+def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
+    """C/N0 each satellite's signal arrives with, without random fading (``virtualgps sky``).
+
+    Parameters
+    ----------
+    prof : profile
+    sky : (..., n_sat) sky
+
+    Returns
+    -------
+    cn0_dbhz : (..., n_sat) dB-Hz; NaN where no signal arrives (below the horizon, blocked
+        without a reflection)
+    """
+    above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
+    arrives = above & (~sky.blocked | sky.nlos)
+    if prof.cn0_tracking.enabled:
+        ct = prof.cn0_tracking
+        cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db)
+    else:
+        sig = prof.signal
+        cn0 = cn0_from_elevation_dbhz(sky.el_deg, sig.cn0_horizon_dbhz, sig.cn0_zenith_dbhz)
+    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0)
+    return np.where(arrives, cn0, np.nan)
+
+
 def tracked_cn0(
     prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, u: np.ndarray,
     layout: dict[str, int],
