@@ -82,8 +82,10 @@ def test_live_loop_fix_rules_and_epoch_times(receiver):
     assert (q[(age > 0.05) & (age < 2.0 - 0.05)] == 1).all()  # held within the 2 s timeout
     assert (q[age > 2.0 + 0.05] == 0).all()  # older than the timeout: no fix
     assert dict(provider.bad) == {"not-json": 1, "no-position": 1}
-    assert stats.epochs == 35 and len(sink.epochs) == 35
-    assert all(e.startswith(b"$GPGGA") and e.endswith(b"\r\n") for e in sink.epochs)
+    # holux-m1000 speaks MTK: its power-up message comes before the first epoch.
+    assert sink.epochs[0] == b"$PMTK010,001*2E\r\n"
+    assert stats.epochs == 35 and len(sink.epochs) == 36
+    assert all(e.startswith(b"$GPGGA") and e.endswith(b"\r\n") for e in sink.epochs[1:])
 
 
 def test_demo_lap_walks_the_loop_at_the_set_speed():
@@ -99,3 +101,21 @@ def test_demo_lap_walks_the_loop_at_the_set_speed():
     np.testing.assert_allclose(p2, pos, atol=1e-6)
     p0, _, _ = walk.pose_at(np.array([START]))
     np.testing.assert_allclose(p0[0], scene.demo_waypoints_enu_m[0], atol=1e-9)
+
+
+def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
+    from dataclasses import replace
+
+    from virtualgps import mtk
+
+    _, rx = receiver
+    on = replace(mtk.default_settings(("GGA",), {}, 1.0, 38400), dgps_mode=2, sbas_enabled=True,
+                 static_nav_mps=0.8)
+    rx2 = daemon.apply_link_settings(rx, on)
+    assert rx2.profile.sbas.enabled and rx2.profile.static_hold.enabled
+    assert rx2.profile.static_hold.threshold_mps == 0.8
+    assert rx2.ephemeris is rx.ephemeris and rx2.georef == rx.georef
+    off = replace(on, sbas_enabled=False, static_nav_mps=0.0)
+    rx3 = daemon.apply_link_settings(rx2, off)
+    assert not rx3.profile.sbas.enabled and not rx3.profile.static_hold.enabled
+    assert daemon.apply_link_settings(rx3, off) is rx3  # nothing to change

@@ -241,8 +241,33 @@ def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
     """
     if getattr(profile, "command_link", "none") != "mtk":
         return None
-    defaults = mtk.default_settings(fmt.sentences, dict(fmt.every), profile.rate_hz, profile.baud)
+    sbas = profile.sbas.enabled
+    hold = profile.static_hold
+    defaults = mtk.default_settings(
+        fmt.sentences, dict(fmt.every), profile.rate_hz, profile.baud,
+        dgps_mode=2 if sbas else 0, sbas_enabled=sbas,
+        static_nav_mps=hold.threshold_mps if hold.enabled else 0.0,
+    )
     return mtk.MtkLink(defaults, profile.firmware)
+
+
+def apply_link_settings(rx: Receiver, settings: mtk.MtkSettings) -> Receiver:
+    """The receiver with the link's SBAS and static-navigation settings in its effects.
+
+    Parameters
+    ----------
+    rx : the receiver
+    settings : the command link's settings (``sbas_active``, ``static_nav_mps``)
+
+    Returns
+    -------
+    rx : a receiver whose profile has ``sbas.enabled`` and ``static_hold`` set accordingly
+    """
+    prof = rx.profile
+    hold = replace(prof.static_hold, enabled=settings.static_nav_mps > 0.0,
+                   threshold_mps=settings.static_nav_mps or prof.static_hold.threshold_mps)
+    new = replace(prof, sbas=replace(prof.sbas, enabled=settings.sbas_active), static_hold=hold)
+    return rx if new == prof else replace(rx, profile=new)
 
 
 def _format_for(
@@ -328,7 +353,7 @@ def run_daemon(
 
     def service_client() -> None:
         """Read what the client wrote; with a link answer and apply it."""
-        nonlocal state, rate, out_fmt, k, applied
+        nonlocal state, rate, out_fmt, k, applied, rx
         data = device.read_available()
         if link is None or applied is None or not data:
             return
@@ -357,6 +382,10 @@ def run_daemon(
                 log.info("client set the fix interval to %d ms", new.fix_interval_ms)
             if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
                 out_fmt = _format_for(base_fmt, new, link.defaults, rate)
+            if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
+                rx = apply_link_settings(rx, new)
+                log.info("client set SBAS %s, static navigation %.2f m/s",
+                         "on" if new.sbas_active else "off", new.static_nav_mps)
 
     k = next_k(rate)
     while not stop.is_set():

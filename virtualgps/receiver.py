@@ -145,6 +145,9 @@ def initial_state(profile: Profile, t_unix_s: float, rng: np.random.Generator) -
     return state
 
 
+_FACADES: dict[int, tuple[object, signals.Facades]] = {}  # scene id -> (scene, its walls)
+
+
 @dataclass(frozen=True)
 class Receiver:
     """Everything fixed during a run: profile, ephemeris, scene and georeference.
@@ -179,9 +182,12 @@ class Receiver:
         if self.profile.nlos.enabled and faces is not None and len(faces):
             from virtualgps.scene import CLASS_OCCLUDER
 
-            sel = self.scene.face_class == CLASS_OCCLUDER
-            facades = signals.Facades(self.scene.vertices_enu_m, faces[sel],
-                                      self.scene.face_object[sel])
+            facades = _FACADES.get(id(self.scene), (None, None))[1]
+            if facades is None:  # built once per scene (a profile change must not rebuild it)
+                sel = self.scene.face_class == CLASS_OCCLUDER
+                facades = signals.Facades(self.scene.vertices_enu_m, faces[sel],
+                                          self.scene.face_object[sel])
+                _FACADES[id(self.scene)] = (self.scene, facades)
         object.__setattr__(self, "facades", facades)
 
 
