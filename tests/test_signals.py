@@ -207,3 +207,41 @@ def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls)
     err = geodesy.ecef_to_enu(rep, g.lat0_deg, g.lon0_deg, g.alt0_hae_m) - geodesy.ecef_to_enu(
         truth, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
     np.testing.assert_allclose(err, np.broadcast_to(expect, err.shape), atol=0.01)
+
+
+def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
+    from virtualgps import geodesy
+    from virtualgps.config import BUNDLED_SCENES_DIR
+    from virtualgps.receiver import Georef, compute_sky
+    from virtualgps.scene import load_scene
+
+    scene = load_scene(BUNDLED_SCENES_DIR / "test-wall")
+    # Tree1's crown: east 20..26, north -20..-14, up 3..9 (tools/make_test_scene.py).
+    origin = np.array([[23.0, -30.0, 6.0]])
+    north = np.array([[0.0, 1.0, 0.0]])
+    np.testing.assert_allclose(signals.foliage_path_m(scene, origin, north, 4.0), 6.0, atol=1e-3)
+    # Slanted at 10 deg it stays between up 3 and 9 across the 6 m crown: 6 / cos(10 deg).
+    el = 10.0
+    d = geodesy.azel_to_enu_unit(0.0, el)[None, :]
+    np.testing.assert_allclose(signals.foliage_path_m(scene, origin, d, 4.0),
+                               6.0 / np.cos(np.radians(el)), atol=1e-3)
+    assert signals.foliage_path_m(scene, origin, -north, 4.0)[0] == 0.0
+
+    g = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
+
+    class Sky(FixedSky):
+        def __init__(self, az, el):
+            super().__init__(az, el)
+            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
+            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+
+    sky = Sky([0.0, 180.0], [el, 60.0])
+    prof = load_profile("ideal", {"foliage": {"enabled": True, "db_per_m": 1.5, "max_db": 20.0}})
+    out = compute_sky(Receiver(prof, sky, scene, g), np.array([1.49e9]), origin)
+    np.testing.assert_allclose(out.foliage_db[0], [1.5 * 6.0 / np.cos(np.radians(el)), 0.0],
+                               atol=2e-3)
+    assert not out.blocked.any()
+    capped = load_profile("ideal", {"foliage": {"enabled": True, "db_per_m": 10.0,
+                                                "max_db": 20.0}})
+    out = compute_sky(Receiver(capped, sky, scene, g), np.array([1.49e9]), origin)
+    assert out.foliage_db[0, 0] == pytest.approx(20.0)  # saturates

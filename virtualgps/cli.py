@@ -359,7 +359,8 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
 
     States: ``below_mask`` (above the horizon, below the mask), ``blocked`` (line of sight
     hits an occluder, no signal), ``nlos`` (blocked, received off a wall: the ``nlos`` effect),
-    ``visible``. ``cn0_dbhz`` is the arriving signal's C/N0 without fading (null where none).
+    ``attenuated`` (through foliage: the ``foliage`` effect), ``visible``. ``cn0_dbhz`` is the
+    arriving signal's C/N0 without fading (null where none).
     """
     from virtualgps.receiver import expected_cn0_dbhz
 
@@ -375,6 +376,8 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
             state = "nlos"
         elif sky.blocked[0, j]:
             state = "blocked"
+        elif sky.foliage_db[0, j] > 0.0:
+            state = "attenuated"
         else:
             state = "visible"
         c = float(cn0[0, j])

@@ -207,6 +207,19 @@ class NlosParams:
 
 
 @dataclass(frozen=True)
+class FoliageParams:
+    """``foliage``: foliage-class objects attenuate instead of block: ``db_per_m`` times the
+    path length through the crowns, at most ``max_db`` (a saturating specific attenuation; ITU-R
+    P.833's vegetation model has this form). An open (billboard) tree crossing counts
+    ``billboard_m`` metres. Takes precedence over ``sky.foliage``."""
+
+    enabled: bool = False
+    db_per_m: float = 1.0
+    max_db: float = 20.0
+    billboard_m: float = 4.0
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -236,6 +249,7 @@ class Profile:
     static_hold: StaticHoldParams = field(default_factory=StaticHoldParams)
     sbas: SbasParams = field(default_factory=SbasParams)
     nlos: NlosParams = field(default_factory=NlosParams)
+    foliage: FoliageParams = field(default_factory=FoliageParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -304,6 +318,7 @@ _TABLES = {
     "static_hold": StaticHoldParams,
     "sbas": SbasParams,
     "nlos": NlosParams,
+    "foliage": FoliageParams,
 }
 
 

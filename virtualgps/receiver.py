@@ -203,6 +203,7 @@ class Sky:
     blocked : (..., n_t, n_sat) bool, line of sight hits an occluder (False below the mask)
     nlos : (..., n_t, n_sat) bool, blocked but received off a facade (``nlos`` effect)
     excess_m : (..., n_t, n_sat) float, metres, the reflected path's extra length (0 if direct)
+    foliage_db : (..., n_t, n_sat) float, dB, attenuation through foliage (``foliage`` effect)
     """
 
     lat_deg: np.ndarray
@@ -215,6 +216,7 @@ class Sky:
     blocked: np.ndarray
     nlos: np.ndarray
     excess_m: np.ndarray
+    foliage_db: np.ndarray
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
@@ -339,6 +341,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     with np.errstate(invalid="ignore"):
         above = el >= rx.profile.sky.elevation_mask_deg  # NaN (no ephemeris) -> False
     blocked = np.zeros_like(above)
+    foliage_db = np.zeros(above.shape)
     if rx.scene is not None and above.any():
         # Rays are cast in the scene's frame: the ENU frame of the georeference point, whose
         # axes differ from the antenna's local ENU by the Earth's curvature (~0.009 deg per km).
@@ -346,7 +349,11 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = np.broadcast_to(ant[..., None, :], above.shape + (3,))[idx]
         hit = rx.scene.blocked(origins, dirs, cls="occluder")
-        if rx.profile.sky.foliage == "block":
+        if rx.profile.foliage.enabled:
+            fol = rx.profile.foliage
+            path_m = signals.foliage_path_m(rx.scene, origins, dirs, fol.billboard_m)
+            foliage_db[idx] = np.minimum(fol.db_per_m * path_m, fol.max_db)
+        elif rx.profile.sky.foliage == "block":
             hit = hit | rx.scene.blocked(origins, dirs, cls="foliage")
         blocked[idx] = hit
     nlos = np.zeros_like(blocked)
@@ -359,7 +366,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
                                         rx.profile.nlos.max_dist_m)
         nlos[idx] = found
         excess[idx] = np.where(found, ex, 0.0)
-    return Sky(lat, lon, alt, az, el, los_enu, above, blocked, nlos, excess)
+    return Sky(lat, lon, alt, az, el, los_enu, above, blocked, nlos, excess, foliage_db)
 
 
 def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.ndarray:
@@ -547,7 +554,7 @@ def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
     else:
         sig = prof.signal
         cn0 = cn0_from_elevation_dbhz(sky.el_deg, sig.cn0_horizon_dbhz, sig.cn0_zenith_dbhz)
-    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0)
+    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0) - sky.foliage_db
     return np.where(arrives, cn0, np.nan)
 
 
@@ -580,7 +587,7 @@ def tracked_cn0(
     cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
     above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
-    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0)
+    cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0) - sky.foliage_db
     cn0 = np.where(above & (~sky.blocked | sky.nlos), cn0, -np.inf)
     finite_dt = dt_s[np.isfinite(dt_s)]
     step_s = float(np.median(finite_dt)) if finite_dt.size else 1.0 / prof.rate_hz
