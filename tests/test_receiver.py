@@ -356,3 +356,27 @@ def test_sbas_gives_quality_2_and_smaller_errors():
     # Every UERE term halves, so (same seed, same geometry) every error halves exactly.
     # (to 0.1 mm: metres become degrees by a first-order offset, good to d^2 / R)
     np.testing.assert_allclose(_enu_errors(sbas), 0.5 * _enu_errors(plain), atol=1e-4)
+
+
+def test_reported_sigma_matches_the_error_scatter_and_reaches_gst():
+    from pynmeagps import NMEAReader
+
+    from virtualgps import nmea
+
+    prof = load_profile("ideal", {"dop_error": {"enabled": True}})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    fixes, _ = _run(prof, sky, n_t=20_000, seed=4)
+    err = _enu_errors(fixes)
+    np.testing.assert_allclose(err.std(axis=0), fixes.sigma_enu_m[0], rtol=0.05)
+    np.testing.assert_allclose(fixes.sigma_enu_m, fixes.sigma_enu_m[:1].repeat(20_000, 0))
+    fmt = nmea.NmeaFormat.from_dict({"sentences": ["GGA", "GST"]})
+    text = nmea.epoch_sentences(fixes, 0, fmt).split(b"\r\n")
+    gst = NMEAReader.parse(text[1] + b"\r\n", validate=1)
+    assert gst.msgID == "GST"
+    assert float(gst.stdLat) == pytest.approx(fixes.sigma_enu_m[0, 1], abs=0.051)
+    assert float(gst.stdLong) == pytest.approx(fixes.sigma_enu_m[0, 0], abs=0.051)
+    assert float(gst.stdAlt) == pytest.approx(fixes.sigma_enu_m[0, 2], abs=0.051)
+    # The paper's model reports its sigma(n) horizontally and nothing vertically.
+    us, _ = _run(load_profile("usarsim"), sky, n_t=3)
+    np.testing.assert_allclose(us.sigma_enu_m[:, :2], usarsim_sigma_m(7, 8.0, 2.0))
+    assert np.isnan(us.sigma_enu_m[:, 2]).all()

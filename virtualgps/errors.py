@@ -176,3 +176,27 @@ def wls_error(
     if n_states == 4:
         err[..., 2] = sol[..., 2]
     return np.where(ok[..., None], err, np.nan)
+
+
+def wls_sigma_enu_m(los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray) -> np.ndarray:
+    """One-sigma east/north/up errors of a weighted least-squares fix: sqrt(diag (G^T W G)^-1).
+
+    Parameters
+    ----------
+    los_enu : (..., n_sat, 3) unit vectors to the satellites, ENU
+    used : (..., n_sat) bool
+    sigma_m : (..., n_sat) float, metres, range error sigmas (W = 1 / sigma^2)
+
+    Returns
+    -------
+    sigma_enu_m : (..., 3) float, metres; NaN with fewer than 4 used satellites
+    """
+    g = np.concatenate([-np.nan_to_num(los_enu), np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
+    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None]
+    normal = np.einsum("...si,...sj->...ij", g * w, g)
+    ok = used.sum(axis=-1) >= 4
+    safe = np.where(ok[..., None, None], normal, np.eye(4))
+    ok &= np.abs(np.linalg.det(safe)) > 1e-12
+    q = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(4)))
+    diag = np.sqrt(np.abs(np.diagonal(q, axis1=-2, axis2=-1)[..., :3]))
+    return np.where(ok[..., None], diag, np.nan)

@@ -843,6 +843,8 @@ def render_batch(
     before the fix is valid; a receiver model may hold its last fix that way); NaN positions
     print as the style's no-fix placeholders. DOPs are clipped to 99.
     """
+    if sigma_m is None:
+        sigma_m = fixes.gst_sigma_m()  # the receiver's own error estimate, where it has one
     lo, hi, _ = slice(start, stop).indices(len(fixes))
     if hi - lo < _SMALL:
         return [_render_scalar(fixes, fmt, sigma_m, i) for i in range(lo, hi)]

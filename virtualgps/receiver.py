@@ -446,12 +446,17 @@ class PositionErrors:
     enu_m : (n_t, 3) metres, error of the reported position (up 0 for the paper's model)
     three_d, two_d : (n_t,) bool, a 3D / 2D solution exists (enough used satellites)
     gm_m : the Gauss-Markov state after the batch (None when the effect is off)
+    sigma_enu_m : (n_t, 3) metres, the model's 1-sigma of each axis (what GST reports); NaN
+        where the model has none
+    range_rms_m : (n_t,) metres, RMS range error sigma of the used satellites (NaN: none)
     """
 
     enu_m: np.ndarray
     three_d: np.ndarray
     two_d: np.ndarray
     gm_m: np.ndarray | None
+    sigma_enu_m: np.ndarray
+    range_rms_m: np.ndarray
 
 
 def position_errors(
@@ -489,6 +494,9 @@ def position_errors(
     """
     n_t, n_sat = used.shape
     enu = np.zeros((n_t, 3))
+    var = np.zeros((n_t, 3))  # variance of each axis under the model
+    modelled = np.zeros(3, bool)  # axes the model says something about
+    range_rms = np.full(n_t, np.nan)
     gm_state = None
     three_d = n_used >= 4
     two_d = np.zeros(n_t, bool)
@@ -496,6 +504,8 @@ def position_errors(
         sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
         z_north, z_east = box_muller(u[:, 0], u[:, 1])
         enu[:, 0], enu[:, 1] = sigma * z_east, sigma * z_north
+        var[:, :2] += (sigma**2)[:, None]
+        modelled[:2] = True
     ce = prof.correlated_error
     if ce.enabled:
         c = layout["gm"]
@@ -515,6 +525,8 @@ def position_errors(
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
             gm_state = gm[-1]
             enu += gm
+            var += sig**2
+            modelled[:] = True
     if prof.dop_error.enabled:
         sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof))
         c = layout["white"]
@@ -530,7 +542,12 @@ def position_errors(
         three_d = three_d & np.isfinite(e3[:, 0])
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
-    return PositionErrors(enu, three_d, two_d, gm_state)
+        var += np.square(errors.wls_sigma_enu_m(sky.los_enu, used, sigma_i))
+        modelled[:] = True
+        with np.errstate(invalid="ignore"):
+            range_rms = np.sqrt(np.nanmean(np.where(used, sigma_i**2, np.nan), axis=1))
+    sigma = np.where(modelled, np.sqrt(var), np.nan)
+    return PositionErrors(enu, three_d, two_d, gm_state, sigma, range_rms)
 
 
 def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
@@ -806,6 +823,8 @@ def simulate(
         truth_lat_deg=sky.lat_deg * truth_nan,
         truth_lon_deg=sky.lon_deg * truth_nan,
         truth_alt_hae_m=sky.alt_hae_m * truth_nan,
+        sigma_enu_m=err.sigma_enu_m * nofix[:, None],
+        range_rms_m=err.range_rms_m * nofix,
     )
     new_state = replace(
         state,

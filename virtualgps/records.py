@@ -38,6 +38,9 @@ class Fixes:
     used : (n_t, n_sat) bool, used in the fix (at most 12 per epoch)
     truth_lat_deg, truth_lon_deg, truth_alt_hae_m : (n_t,) float64, the antenna's true position
         (NaN where there was no pose)
+    sigma_enu_m : (n_t, 3) float64, metres, the receiver's own 1-sigma estimate of its east,
+        north and up error (for GST), or None; NaN where it has none
+    range_rms_m : (n_t,) float64, metres, RMS of the used satellites' range error sigmas, or None
     """
 
     t_unix_s: np.ndarray
@@ -61,9 +64,36 @@ class Fixes:
     truth_lat_deg: np.ndarray
     truth_lon_deg: np.ndarray
     truth_alt_hae_m: np.ndarray
+    sigma_enu_m: np.ndarray | None = None
+    range_rms_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_unix_s.shape[0])
+
+    def gst_sigma_m(self) -> dict[str, np.ndarray] | None:
+        """The GST fields (NMEA 0183 v2.3) from ``sigma_enu_m``, or None without an estimate.
+
+        The error ellipse is taken axis-aligned (semi-major = the larger of the east/north
+        sigmas, orientation 0 or 90 deg): a receiver's reported ellipse, not a covariance.
+
+        Returns
+        -------
+        sigma_m : ``range_rms_m``, ``semi_major_m``, ``semi_minor_m``, ``orient_deg``,
+            ``lat_m``, ``lon_m``, ``alt_m``, each (n_t,) float
+        """
+        if self.sigma_enu_m is None:
+            return None
+        e, n, u = self.sigma_enu_m[:, 0], self.sigma_enu_m[:, 1], self.sigma_enu_m[:, 2]
+        rms = self.range_rms_m if self.range_rms_m is not None else np.full(len(self), np.nan)
+        return {
+            "range_rms_m": rms,
+            "semi_major_m": np.maximum(e, n),
+            "semi_minor_m": np.minimum(e, n),
+            "orient_deg": np.where(n >= e, 0.0, 90.0),
+            "lat_m": n,
+            "lon_m": e,
+            "alt_m": u,
+        }
 
     @property
     def sats_used(self) -> np.ndarray:
