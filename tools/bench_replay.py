@@ -55,26 +55,30 @@ def write_walk(path: Path, hours: float) -> None:
             )
 
 
-def bench_replay(poses: Path, out: Path, profile: str) -> tuple[float, int]:
+def bench_replay(poses: Path, out: Path, profile: str, cfg: str | None) -> tuple[float, int]:
     t0 = time.perf_counter()
-    code = cli_main(["replay", str(poses), "--out", str(out), "--profile", profile, "--seed", "1"])
+    extra = ["--config", cfg] if cfg else []
+    code = cli_main(["replay", str(poses), "--out", str(out), "--profile", profile, "--seed", "1",
+                     *extra])
     assert code == 0
     n = sum(1 for line in open(out, "rb") if line.startswith(b"$GPGGA"))
     return time.perf_counter() - t0, n
 
 
-def bench_startup(profile: str) -> float:
-    """Wall time of loading profile, scene (mesh + Embree) and TLEs: what a replay pays once."""
+def bench_startup(profile: str, cfg_file: str | None) -> float:
+    """Wall time of loading profile, scene (mesh + Embree), TLEs and the receiver (with its
+    reflecting walls): what a replay pays once."""
     t0 = time.perf_counter()
-    cfg = config.resolve({"profile": profile})
-    scene, _, tle = config.load_scene_for(cfg)
-    config.load_ephemeris(cfg, tle)
+    cfg = config.resolve({"profile": profile, "config": cfg_file})
+    scene, georef, tle = config.load_scene_for(cfg)
+    eph, _ = config.load_ephemeris(cfg, tle)
+    config.make_receiver(cfg, scene, georef, eph, START_UNIX_S)
     return time.perf_counter() - t0
 
 
-def bench_live(profile: str, n_epochs: int) -> float:
+def bench_live(profile: str, cfg_file: str | None, n_epochs: int) -> float:
     """Process CPU seconds per epoch of the daemon's per-epoch work."""
-    cfg = config.resolve({"profile": profile})
+    cfg = config.resolve({"profile": profile, "config": cfg_file})
     scene, georef, tle = config.load_scene_for(cfg)
     eph, _ = config.load_ephemeris(cfg, tle)
     rx = config.make_receiver(cfg, scene, georef, eph, START_UNIX_S)
@@ -98,6 +102,7 @@ def main() -> None:
     ap.add_argument("--profile", default="holux-m1000")
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--live-epochs", type=int, default=2000)
+    ap.add_argument("--config", help="a config file of profile overrides (e.g. effects on)")
     args = ap.parse_args()
     try:
         cores = len(os.sched_getaffinity(0))
@@ -106,10 +111,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         poses = Path(tmp) / "walk.jsonl"
         write_walk(poses, args.hours)
-        startup_s = bench_startup(args.profile)
-        wall_s, n = bench_replay(poses, Path(tmp) / "out.nmea", args.profile)
-    live_s = bench_live(args.profile, args.live_epochs)
-    print(f"profile {args.profile}, {cores} core(s) available to the process")
+        startup_s = bench_startup(args.profile, args.config)
+        wall_s, n = bench_replay(poses, Path(tmp) / "out.nmea", args.profile, args.config)
+    live_s = bench_live(args.profile, args.config, args.live_epochs)
+    print(f"profile {args.profile}{' + ' + args.config if args.config else ''}, {cores} core(s) "
+          "available to the process")
     print(
         f"replay: {n} epochs in {wall_s:.2f} s including start-up ({startup_s:.2f} s) "
         f"-> {n / wall_s:,.0f} epochs/s overall, {n / max(wall_s - startup_s, 1e-9):,.0f} "

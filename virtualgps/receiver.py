@@ -544,8 +544,9 @@ def position_errors(
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
         var += np.square(errors.wls_sigma_enu_m(sky.los_enu, used, sigma_i))
         modelled[:] = True
-        with np.errstate(invalid="ignore"):
-            range_rms = np.sqrt(np.nanmean(np.where(used, sigma_i**2, np.nan), axis=1))
+        n = used.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            range_rms = np.sqrt(np.where(used, sigma_i**2, 0.0).sum(axis=1) / n)
     sigma = np.where(modelled, np.sqrt(var), np.nan)
     return PositionErrors(enu, three_d, two_d, gm_state, sigma, range_rms)
 
