@@ -45,7 +45,8 @@ class WallOnAzimuth:
 
     def blocked(self, origins_enu_m, dirs_enu, cls="occluder"):
         az, _, _ = geodesy.enu_to_azel(dirs_enu)
-        return (az >= self.az0) & (az < self.az1) if cls == "occluder" else np.zeros(len(az), bool)
+        blocks = cls in ("occluder", "solid")  # "solid": occluders and foliage together
+        return (az >= self.az0) & (az < self.az1) if blocks else np.zeros(len(az), bool)
 
 
 def test_sigma_equals_paper_equations():

@@ -346,13 +346,17 @@ class Constellation:
         """Median TLE epoch, UTC Unix seconds: the time the set is most accurate around."""
         return float(np.median(self.epoch_unix_s))
 
-    def sat_state_ecef(self, t_unix_s: ArrayLike) -> tuple[F64, F64]:
+    def sat_state_ecef(
+        self, t_unix_s: ArrayLike, with_velocity: bool = True
+    ) -> tuple[F64, F64 | None]:
         """Propagate every satellite to the given times; positions and velocities in ECEF.
 
         Parameters
         ----------
         t_unix_s : scalar or (...) float, UTC Unix seconds. A 1-D input of n_t times gives
             (n_t, n_sat, 3); a scalar gives (n_sat, 3); any shape S gives S + (n_sat, 3).
+        with_velocity : False skips the velocities (returned as None): the receiver needs
+            positions only, once per live epoch
 
         Returns
         -------
@@ -369,13 +373,15 @@ class Constellation:
         )
         # sgp4 gives (n_sat, n_t, ...); we keep time first, satellites second.
         r_teme_m = np.transpose(r_km, (1, 0, 2)) * 1000.0
-        v_teme_mps = np.transpose(v_kmps, (1, 0, 2)) * 1000.0
+        v_teme_mps = np.transpose(v_kmps, (1, 0, 2)) * 1000.0 if with_velocity else None
         r_ecef, v_ecef = teme_to_ecef(r_teme_m, t_flat[:, None], v_teme_mps)
-        assert v_ecef is not None
         bad = (err.T != 0)[..., None]
-        r_ecef = np.where(bad, np.nan, r_ecef)
-        v_ecef = np.where(bad, np.nan, v_ecef)
         shape = t.shape + (len(self), 3)
+        if bad.any():
+            r_ecef = np.where(bad, np.nan, r_ecef)
+        if v_ecef is None:
+            return r_ecef.reshape(shape), None
+        v_ecef = np.where(bad, np.nan, v_ecef)
         return r_ecef.reshape(shape), v_ecef.reshape(shape)
 
     def sat_ecef_m(self, t_unix_s: ArrayLike) -> F64:
@@ -389,7 +395,7 @@ class Constellation:
         -------
         sat_ecef_m : (..., n_sat, 3) float, metres, ECEF; NaN where SGP4 failed
         """
-        return self.sat_state_ecef(t_unix_s)[0]
+        return self.sat_state_ecef(t_unix_s, with_velocity=False)[0]
 
 
 def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constellation:

@@ -277,15 +277,23 @@ def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     hdop, vdop, pdop : (...) float; NaN with fewer than 4 used satellites or a singular geometry
     """
     w = used.astype(float)[..., None]
-    g = np.concatenate([-np.nan_to_num(los_enu), np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
-    gw = g * w
-    normal = np.einsum("...si,...sj->...ij", gw, g)
+    los = np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num is slow on tiny arrays)
+    g = np.concatenate([-los, np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
+    normal = np.einsum("...si,...sj->...ij", g * w, g)
     ok = used.sum(axis=-1) >= 4
-    ok &= np.abs(np.linalg.det(np.where(ok[..., None, None], normal, np.eye(4)))) > 1e-9
-    q = np.linalg.inv(np.where(ok[..., None, None], normal, np.eye(4)))
-    qe, qn, qu = q[..., 0, 0], q[..., 1, 1], q[..., 2, 2]
-    nan = np.where(ok, 1.0, np.nan)
-    return np.sqrt(qe + qn) * nan, np.sqrt(qu) * nan, np.sqrt(qe + qn + qu) * nan
+    safe = np.where(ok[..., None, None], normal, np.eye(4))
+    try:
+        q = np.linalg.inv(safe)
+    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: find it
+        ok &= np.abs(np.linalg.det(safe)) > 1e-9
+        q = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(4)))
+    # A nearly singular geometry (e.g. every satellite at one elevation: up and clock can't be
+    # told apart) inverts to huge or negative variances; a real one has PDOP < 1e4.
+    diag = np.diagonal(q, axis1=-2, axis2=-1)[..., :3]
+    ok &= np.all((diag >= 0.0) & (diag < 1e8), axis=-1)
+    diag = np.where(ok[..., None], diag, np.nan)
+    qe, qn, qu = diag[..., 0], diag[..., 1], diag[..., 2]
+    return np.sqrt(qe + qn), np.sqrt(qu), np.sqrt(qe + qn + qu)
 
 
 def antenna_geodetic(
@@ -348,13 +356,12 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         idx = np.nonzero(above)
         dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = np.broadcast_to(ant[..., None, :], above.shape + (3,))[idx]
-        hit = rx.scene.blocked(origins, dirs, cls="occluder")
+        foliage_blocks = rx.profile.sky.foliage == "block" and not rx.profile.foliage.enabled
+        hit = rx.scene.blocked(origins, dirs, cls="solid" if foliage_blocks else "occluder")
         if rx.profile.foliage.enabled:
             fol = rx.profile.foliage
             path_m = signals.foliage_path_m(rx.scene, origins, dirs, fol.billboard_m)
             foliage_db[idx] = np.minimum(fol.db_per_m * path_m, fol.max_db)
-        elif rx.profile.sky.foliage == "block":
-            hit = hit | rx.scene.blocked(origins, dirs, cls="foliage")
         blocked[idx] = hit
     nlos = np.zeros_like(blocked)
     excess = np.zeros(blocked.shape)
@@ -384,7 +391,7 @@ def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.n
     """
     if seen.shape[-1] <= max_channels:
         return seen.copy()
-    key = np.where(seen, np.nan_to_num(el_deg, nan=-90.0), -np.inf)
+    key = np.where(seen, el_deg, -np.inf)  # a seen satellite has a finite elevation
     order = np.argsort(-key, axis=-1, kind="stable")
     rank = np.empty_like(order)
     np.put_along_axis(rank, order, np.arange(seen.shape[-1]), axis=-1)
@@ -564,7 +571,7 @@ def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
     cn0_dbhz : (..., n_sat) dB-Hz; NaN where no signal arrives (below the horizon, blocked
         without a reflection)
     """
-    above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
+    above = sky.el_deg >= 0.0  # NaN (no ephemeris): False
     arrives = above & (~sky.blocked | sky.nlos)
     if prof.cn0_tracking.enabled:
         ct = prof.cn0_tracking
@@ -603,7 +610,7 @@ def tracked_cn0(
     fade = errors.gauss_markov(fade0, dt_s, ct.fade_tau_s, np.full(n_sat, ct.fade_sigma_db),
                                z[:, :n_sat])
     cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
-    above = np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0
+    above = sky.el_deg >= 0.0  # NaN (no ephemeris): False
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
     cn0 = np.where(sky.nlos, cn0 - prof.nlos.reflection_loss_db, cn0) - sky.foliage_db
     cn0 = np.where(above & (~sky.blocked | sky.nlos), cn0, -np.inf)
@@ -774,7 +781,8 @@ def simulate(
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)
-    vel = np.nan_to_num(np.asarray(vel_enu_mps, dtype=float))
+    vel = np.asarray(vel_enu_mps, dtype=float)
+    vel = np.where(np.isnan(vel), 0.0, vel)
     err_enu, out_state = output_stage(prof, ant, err.enu_m, vel, dt_s, has_fix, state)
     north_m, east_m, up_m = err_enu[:, 1], err_enu[:, 0], err_enu[:, 2]
     if prof.georef == "flat_earth":
@@ -797,7 +805,7 @@ def simulate(
     speed = np.hypot(vel[:, 0], vel[:, 1])
     course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
 
-    in_view = (np.nan_to_num(sky.el_deg, nan=-90.0) >= 0.0) & pose_valid[:, None]
+    in_view = (sky.el_deg >= 0.0) & pose_valid[:, None]  # NaN elevation: False
     nofix = np.where(has_fix, 1.0, np.nan)
     truth_nan = np.where(pose_valid, 1.0, np.nan)
     fixes = Fixes(

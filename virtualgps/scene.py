@@ -74,8 +74,9 @@ F64 = NDArray[np.float64]
 CLASS_OCCLUDER, CLASS_FOLIAGE, CLASS_IGNORE = 0, 1, 2
 CLASS_NAMES = ("occluder", "foliage", "ignore")
 # Names accepted by the queries' ``cls``: one class, or "all" (every face, ignored ones too).
-QueryClass = Literal["occluder", "foliage", "ignore", "all"]
-_QUERY_CLASSES = ("occluder", "foliage", "ignore", "all")
+# "solid" = occluders and foliage together: one query where foliage blocks (the paper's rule).
+QueryClass = Literal["occluder", "foliage", "ignore", "all", "solid"]
+_QUERY_CLASSES = ("occluder", "foliage", "ignore", "all", "solid")
 
 # Ray-origin nudge (see module docstring). 1 mm is 4x the float32 spacing at 8 km from the
 # origin; larger scenes scale it to 4 ulps of their extent.
@@ -230,6 +231,8 @@ class Scene:
         for name in _QUERY_CLASSES:
             if name == "all":
                 sel = self.faces
+            elif name == "solid":
+                sel = self.faces[face_class != CLASS_NAMES.index("ignore")]
             else:
                 sel = self.faces[face_class == CLASS_NAMES.index(name)]
             if len(sel) == 0:

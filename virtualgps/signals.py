@@ -25,7 +25,8 @@ def antenna_gain_db(el_deg: np.ndarray, horizon_loss_db: float) -> np.ndarray:
     -------
     gain_db : (...) float, dB (<= 0)
     """
-    s = np.sin(np.radians(np.clip(np.nan_to_num(el_deg, nan=-90.0), 0.0, 90.0)))
+    el = np.asarray(el_deg, dtype=float)
+    s = np.sin(np.radians(np.clip(np.where(np.isnan(el), 0.0, el), 0.0, 90.0)))
     return -horizon_loss_db * (1.0 - s)
 
 
