@@ -237,7 +237,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.end()
         device.close()
         provider.close()
-    if stats.link is not None:
+    if stats.link is not None and (stats.link.commands or stats.link.bad_checksum):
         log.info(
             "MTK command link: %d commands answered, %d with a wrong checksum ignored; "
             "settings at exit: %s",
