@@ -117,6 +117,51 @@ def now_s_of_day() -> float:
     return t % 86400.0
 
 
+def watch_gpsd(tmp_path: Path, device: Path, seconds: float, done, probe: bool = True) -> list:
+    """Run gpsd on ``device`` and collect its JSON reports until ``done(messages)``.
+
+    probe=False passes ``-b`` (gpsd never writes to the device); True lets it probe.
+    """
+    port = free_port(socket.SOCK_STREAM)
+    args = [GPSD, "-N", "-n", *([] if probe else ["-b"]), "-S", str(port),
+            "-F", str(tmp_path / "gpsd.sock"), str(device)]
+    gpsd = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    messages: list[dict] = []
+    try:
+        deadline = time.monotonic() + seconds
+        sock = None
+        while sock is None and time.monotonic() < deadline:
+            try:
+                sock = socket.create_connection(("127.0.0.1", port), timeout=2)
+            except OSError:
+                time.sleep(0.2)
+        assert sock is not None, "gpsd did not start"
+        with sock:
+            sock.sendall(b'?WATCH={"enable":true,"json":true};\n')
+            sock.settimeout(5)
+            f = sock.makefile("r")
+            while time.monotonic() < deadline and not done(messages):
+                line = f.readline()
+                if not line:
+                    break
+                messages.append(json.loads(line))
+            f.close()
+    finally:
+        gpsd.terminate()
+        gpsd.communicate(timeout=10)
+    return messages
+
+
+def tpv3(messages: list[dict]) -> list[dict]:
+    """gpsd's 3D-fix reports."""
+    return [m for m in messages if m.get("class") == "TPV" and m.get("mode") == 3]
+
+
+def sky_msgs(messages: list[dict]) -> list[dict]:
+    """gpsd's sky reports that list satellites."""
+    return [m for m in messages if m.get("class") == "SKY" and m.get("satellites")]
+
+
 @pytest.fixture(scope="module")
 def magdeburg_antenna():
     """A pose on open ground on the Magdeburg campus: the first demo waypoint of the scene."""
@@ -135,49 +180,13 @@ def test_gpsd_reads_our_fix_and_satellites(tmp_path, magdeburg_antenna):
     daemon = Daemon(tmp_path, "--poses", f"udp://127.0.0.1:{port}", "--seed", "5")
     sender = PoseSender(port, {"x": float(xyz[0]), "y": float(xyz[1]), "z": float(xyz[2])})
     sender.start()
-    gpsd_port = free_port(socket.SOCK_STREAM)
-    gpsd = subprocess.Popen(
-        [
-            GPSD,
-            "-N",
-            "-n",
-            "-b",
-            "-S",
-            str(gpsd_port),
-            "-F",
-            str(tmp_path / "gpsd.sock"),
-            str(daemon.link),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    tpvs, skies = [], []
     try:
-        deadline = time.monotonic() + 60
-        sock = None
-        while sock is None and time.monotonic() < deadline:
-            try:
-                sock = socket.create_connection(("127.0.0.1", gpsd_port), timeout=2)
-            except OSError:
-                time.sleep(0.3)
-        assert sock is not None, "gpsd did not start"
-        with sock:
-            sock.sendall(b'?WATCH={"enable":true,"json":true};\n')
-            f = sock.makefile("r")
-            sock.settimeout(5)
-            while time.monotonic() < deadline and (len(tpvs) < 5 or len(skies) < 3):
-                line = f.readline()
-                if not line:
-                    break
-                msg = json.loads(line)
-                if msg.get("class") == "TPV" and msg.get("mode") == 3:
-                    tpvs.append(msg)
-                elif msg.get("class") == "SKY" and msg.get("satellites"):
-                    skies.append(msg)
-            f.close()
+        messages = watch_gpsd(
+            tmp_path, daemon.link, 60.0,
+            lambda m: len(tpv3(m)) >= 5 and len(sky_msgs(m)) >= 3, probe=False,
+        )
+        tpvs, skies = tpv3(messages), sky_msgs(messages)
     finally:
-        gpsd.terminate()
-        gpsd.communicate(timeout=10)
         sender.stop()
         code, err = daemon.stop()
     assert code == 0, err

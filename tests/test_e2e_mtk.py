@@ -8,17 +8,14 @@ as MTK-3301 (our ``$PMTK705``) and keep reporting fixes after sending its config
 
 from __future__ import annotations
 
-import json
 import os
 import select
-import socket
-import subprocess
 import time
 import tty
 from pathlib import Path
 
 import pytest
-from test_e2e import GPSD, Daemon, free_port
+from test_e2e import GPSD, Daemon, watch_gpsd
 
 pytestmark = pytest.mark.e2e
 
@@ -29,40 +26,6 @@ def write_config(tmp_path: Path, text: str) -> Path:
     path = tmp_path / "run.toml"
     path.write_text(text)
     return path
-
-
-def watch_gpsd(tmp_path: Path, device: Path, seconds: float, done) -> list[dict]:
-    """Run gpsd (probing, no -b) on ``device``; collect its JSON until ``done(messages)``."""
-    port = free_port(socket.SOCK_STREAM)
-    gpsd = subprocess.Popen(
-        [GPSD, "-N", "-n", "-S", str(port), "-F", str(tmp_path / "gpsd.sock"), str(device)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    messages: list[dict] = []
-    try:
-        deadline = time.monotonic() + seconds
-        sock = None
-        while sock is None and time.monotonic() < deadline:
-            try:
-                sock = socket.create_connection(("127.0.0.1", port), timeout=2)
-            except OSError:
-                time.sleep(0.2)
-        assert sock is not None, "gpsd did not start"
-        with sock:
-            sock.sendall(b'?WATCH={"enable":true,"json":true};\n')
-            sock.settimeout(5)
-            f = sock.makefile("r")
-            while time.monotonic() < deadline and not done(messages):
-                line = f.readline()
-                if not line:
-                    break
-                messages.append(json.loads(line))
-            f.close()
-    finally:
-        gpsd.terminate()
-        gpsd.communicate(timeout=10)
-    return messages
 
 
 def drivers(messages: list[dict]) -> list[str]:
