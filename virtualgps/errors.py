@@ -124,14 +124,15 @@ def gauss_markov(
     phi = np.exp(-np.asarray(dt_s, dtype=float) / tau_s)[:, None]  # (n_t, 1)
     drive = np.broadcast_to(sigma, z.shape) * np.sqrt(1.0 - phi**2) * z
     prev = np.asarray(x0, dtype=float)
-    if np.all(phi == phi[0]):
+    if drive.shape[0] > 8 and np.all(phi == phi[0]):
         # Constant step (every batch on the epoch grid): a first-order IIR filter, in C.
         from scipy.signal import lfilter
 
         p = float(phi[0, 0])
         return lfilter([1.0], [1.0, -p], drive, axis=0, zi=(p * prev)[None, :])[0]
+    # A few epochs (the live loop) or variable steps: the plain recursion is cheaper.
     x = np.empty_like(drive)
-    for k in range(x.shape[0]):  # variable steps (a live loop that skipped epochs): recursion
+    for k in range(x.shape[0]):
         prev = phi[k] * prev + drive[k]
         x[k] = prev
     return x

@@ -203,7 +203,7 @@ class NlosParams:
 
     enabled: bool = False
     reflection_loss_db: float = 7.0
-    max_dist_m: float = 50.0
+    max_dist_m: float = 30.0
 
 
 @dataclass(frozen=True)

@@ -226,6 +226,12 @@ def reflections(
     xy, inverse = np.unique(np.round(antenna_enu_m[:, :2], 3), axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     qa, j_a = facades.near(xy, max_dist_m)
+    # A satellite above the horizon reflects off a wall above the antenna: drop walls whose top
+    # is below the lowest antenna at that position.
+    z_min = np.full(len(xy), np.inf)
+    np.minimum.at(z_min, inverse, antenna_enu_m[:, 2])
+    keep = facades.hi_m[j_a, 2] > z_min[qa]
+    qa, j_a = qa[keep], j_a[keep]
     if qa.size == 0:
         return found, excess
     # Expand (antenna, plane) pairs to (query, plane) pairs.
