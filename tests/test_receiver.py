@@ -381,3 +381,29 @@ def test_reported_sigma_matches_the_error_scatter_and_reaches_gst():
     us, _ = _run(load_profile("usarsim"), sky, n_t=3)
     np.testing.assert_allclose(us.sigma_enu_m[:, :2], usarsim_sigma_m(7, 8.0, 2.0))
     assert np.isnan(us.sigma_enu_m[:, 2]).all()
+
+
+def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges():
+    from virtualgps.receiver import restart
+
+    prof = load_profile("ideal", {"cold_start": {"ttff_cold_s": 10.0, "ttff_sd_frac": 0.0,
+                                                 "decode_spread_s": 20.0,
+                                                 "converge_sigma_m": 30.0,
+                                                 "converge_tau_s": 5.0}})
+    sky = FixedSky(np.linspace(0, 330, 12), np.linspace(15, 85, 12))
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    t = 1.49e9 + np.arange(60.0)
+    state = restart(ReceiverState(), "cold", t[0], prof, np.random.default_rng(2), n_sat=12)
+    fixes, _ = simulate(rx, t, np.zeros((60, 3)), np.zeros((60, 3)), np.ones(60, bool), state,
+                        np.random.default_rng(0))
+    n = fixes.sats_used
+    assert (n[:10] == 0).all() and n[10] == 4  # first fix at the TTFF with four satellites
+    assert (np.diff(n[10:]) >= 0).all() and n[31:].min() == 12  # all decoded within 20 s
+    err = np.linalg.norm(_enu_errors(fixes)[10:], axis=1)
+    bias = np.linalg.norm(state.start_bias_enu_m)
+    np.testing.assert_allclose(err, bias * np.exp(-np.arange(50) / 5.0), atol=1e-4)
+    # A hot start keeps its ephemerides: every satellite and no start-up error at the fix.
+    hot = restart(ReceiverState(), "hot", t[0], prof, np.random.default_rng(2), n_sat=12)
+    fixes, _ = simulate(rx, t[:5], np.zeros((5, 3)), np.zeros((5, 3)), np.ones(5, bool), hot,
+                        np.random.default_rng(0))
+    assert fixes.sats_used[fixes.quality > 0].min() == 12

@@ -335,7 +335,8 @@ def run_daemon(
     base_fmt = fmt
     rate = prof.rate_hz
     stats = DaemonStats(link=link)
-    state = initial_state(prof, clock.now_unix_s(), rng)
+    n_sat = len(rx.ephemeris.prn)
+    state = initial_state(prof, clock.now_unix_s(), rng, n_sat)
     if link is not None:
         device.write_epoch(link.startup().encode("ascii"))
     get_fd = getattr(device, "fileno", None)
@@ -362,7 +363,7 @@ def run_daemon(
             if resp.replies:
                 device.write_epoch("".join(resp.replies).encode("ascii"))
             if resp.restart is not None:
-                state = restart(state, resp.restart, clock.now_unix_s(), prof, rng)
+                state = restart(state, resp.restart, clock.now_unix_s(), prof, rng, n_sat)
                 log.info("client commanded a %s start", resp.restart)
             new = applied = resp.settings
             if new is old:

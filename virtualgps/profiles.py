@@ -85,6 +85,10 @@ class ColdStartParams:
     ``ttff_sd_frac`` x mean standard deviation (clipped at 0). Typical MediaTek values (MT3339
     module data sheets quote 35 s cold, 33 s warm, 1 s hot); not M-1000 datasheet facts.
     ``power_on`` is the start the receiver makes when the run begins ("none": a fix at once).
+    After a cold or warm start the first fix uses 4 satellites; the others become usable one
+    by one, uniformly within ``decode_spread_s`` (each needs its ephemeris, 18-30 s of
+    navigation message: IS-GPS-200 subframes 1-3), and the fix starts off by a random
+    ``converge_sigma_m`` error that decays with ``converge_tau_s``.
     """
 
     enabled: bool = False
@@ -93,6 +97,9 @@ class ColdStartParams:
     ttff_warm_s: float = 33.0
     ttff_hot_s: float = 1.0
     ttff_sd_frac: float = 0.15
+    decode_spread_s: float = 30.0
+    converge_sigma_m: float = 10.0
+    converge_tau_s: float = 20.0
 
 
 @dataclass(frozen=True)

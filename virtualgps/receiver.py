@@ -78,6 +78,9 @@ class ReceiverState:
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
     nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
     hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
+    usable_from_t_unix_s : (n_sat,) when each satellite's ephemeris is decoded after a start
+        (None: all usable)
+    start_bias_enu_m : (3,) metres, the start-up error that decays after the first fix
     fade_db, tracked, acq_run : (n_sat,) the ``cn0_tracking`` state: C/N0 fades (dB), tracked
         flags, epochs spent at or above the acquisition threshold; None before the first epoch
     """
@@ -89,6 +92,8 @@ class ReceiverState:
     last_alt_hae_m: float = float("nan")
     nav_enu_m: np.ndarray | None = field(default=None, compare=False)
     hold_enu_m: np.ndarray | None = field(default=None, compare=False)
+    usable_from_t_unix_s: np.ndarray | None = field(default=None, compare=False)
+    start_bias_enu_m: np.ndarray | None = field(default=None, compare=False)
     fade_db: np.ndarray | None = field(default=None, compare=False)
     tracked: np.ndarray | None = field(default=None, compare=False)
     acq_run: np.ndarray | None = field(default=None, compare=False)
@@ -98,7 +103,12 @@ START_KINDS = ("hot", "warm", "cold")
 
 
 def restart(
-    state: ReceiverState, kind: str, t_unix_s: float, profile: Profile, rng: np.random.Generator
+    state: ReceiverState,
+    kind: str,
+    t_unix_s: float,
+    profile: Profile,
+    rng: np.random.Generator,
+    n_sat: int = 0,
 ) -> ReceiverState:
     """Restart the receiver: no fix until a time to first fix drawn for that kind of start.
 
@@ -112,28 +122,43 @@ def restart(
     kind : "hot", "warm" or "cold"
     t_unix_s : when the restart happens, UTC seconds (simulated clock)
     profile : gives the TTFF parameters
-    rng : random generator (one normal draw)
+    rng : random generator (one normal draw; with n_sat, n_sat uniforms and 3 normals more
+        after a cold or warm start)
+    n_sat : number of satellites: after a cold or warm start they become usable one by one
+        after the TTFF, the four highest at once (0: all at the TTFF)
 
     Returns
     -------
-    state : with ``no_fix_until_t_unix_s`` set
+    state : with ``no_fix_until_t_unix_s`` (and the start-up's per-satellite usable times and
+        initial error) set
     """
     if kind not in START_KINDS:
         raise ValueError(f"start kind must be one of {START_KINDS}, not {kind!r}")
     cs = profile.cold_start
     mean_s = {"hot": cs.ttff_hot_s, "warm": cs.ttff_warm_s, "cold": cs.ttff_cold_s}[kind]
     ttff_s = max(0.0, mean_s * (1.0 + cs.ttff_sd_frac * float(rng.standard_normal())))
-    return replace(state, no_fix_until_t_unix_s=t_unix_s + ttff_s)
+    t_fix = t_unix_s + ttff_s
+    if kind == "hot" or n_sat == 0:  # the ephemerides are still valid: every satellite at once
+        return replace(state, no_fix_until_t_unix_s=t_fix, usable_from_t_unix_s=None,
+                       start_bias_enu_m=None)
+    u = rng.random(n_sat)
+    usable = t_fix + cs.decode_spread_s * u  # (the four strongest are usable at t_fix)
+    bias = cs.converge_sigma_m * rng.standard_normal(3)
+    return replace(state, no_fix_until_t_unix_s=t_fix, usable_from_t_unix_s=usable,
+                   start_bias_enu_m=bias)
 
 
-def initial_state(profile: Profile, t_unix_s: float, rng: np.random.Generator) -> ReceiverState:
+def initial_state(
+    profile: Profile, t_unix_s: float, rng: np.random.Generator, n_sat: int = 0
+) -> ReceiverState:
     """The state at power-on: a start of the profile's ``cold_start.power_on`` kind, if enabled.
 
     Parameters
     ----------
     profile : the receiver profile
     t_unix_s : power-on time, UTC seconds
-    rng : random generator (one draw when a start is made)
+    rng : random generator (drawn from when a start is made)
+    n_sat : number of satellites (see :func:`restart`)
 
     Returns
     -------
@@ -141,7 +166,7 @@ def initial_state(profile: Profile, t_unix_s: float, rng: np.random.Generator) -
     """
     state = ReceiverState()
     if profile.cold_start.enabled and profile.cold_start.power_on != "none":
-        state = restart(state, profile.cold_start.power_on, t_unix_s, profile, rng)
+        state = restart(state, profile.cold_start.power_on, t_unix_s, profile, rng, n_sat)
     return state
 
 
@@ -772,6 +797,11 @@ def simulate(
             sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
         )
         cn0 = np.where(seen, cn0, np.nan)
+    if state.usable_from_t_unix_s is not None:  # start-up: ephemerides still being decoded
+        decoded = t[:, None] >= state.usable_from_t_unix_s[None, :]
+        # The four highest satellites (the strongest signals) are decoded first: the first fix.
+        first = select_used(seen, sky.el_deg, 4) & (t >= state.no_fix_until_t_unix_s)[:, None]
+        seen = seen & (decoded | first)
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
     starting = t < state.no_fix_until_t_unix_s
@@ -783,7 +813,12 @@ def simulate(
     mode = np.where(has_fix, mode, MODE_NONE)
     vel = np.asarray(vel_enu_mps, dtype=float)
     vel = np.where(np.isnan(vel), 0.0, vel)
-    err_enu, out_state = output_stage(prof, ant, err.enu_m, vel, dt_s, has_fix, state)
+    err_m = err.enu_m
+    if state.start_bias_enu_m is not None:  # start-up error converging after the first fix
+        since = np.maximum(t - state.no_fix_until_t_unix_s, 0.0)
+        decay = np.exp(-since / prof.cold_start.converge_tau_s)[:, None]
+        err_m = err_m + decay * state.start_bias_enu_m
+    err_enu, out_state = output_stage(prof, ant, err_m, vel, dt_s, has_fix, state)
     north_m, east_m, up_m = err_enu[:, 1], err_enu[:, 0], err_enu[:, 2]
     if prof.georef == "flat_earth":
         lat, lon = geodesy.flat_earth_offset_deg(sky.lat_deg, sky.lon_deg, east_m, north_m)

@@ -15,7 +15,7 @@ from typing import BinaryIO, TextIO
 import numpy as np
 
 from virtualgps import nmea, pose
-from virtualgps.receiver import Georef, Receiver, ReceiverState, simulate
+from virtualgps.receiver import Georef, Receiver, initial_state, simulate
 from virtualgps.records import Fixes
 
 CHUNK_EPOCHS = 4096
@@ -111,7 +111,8 @@ def run_replay(
     n_epochs : number of epochs written
     """
     rng = np.random.default_rng(seed)
-    state = ReceiverState()
+    # The same power-on as the live daemon (a start of the profile's cold_start.power_on kind).
+    state = initial_state(rx.profile, float(grid.t_unix_s[0]), rng, len(rx.ephemeris.prn))
     n = len(grid.t_unix_s)
     max_gap_s = rx.profile.pose_timeout_s
     if fixes_out is not None:
