@@ -3,11 +3,14 @@
 One code path serves the live daemon (batches of one epoch), replay (thousands of epochs) and the
 gap tool. Nothing here touches files, clocks or sockets; the random generator and the receiver
 state are passed in and the new state is returned, so running N epochs at once gives the same
-numbers as running them one at a time (the generator is consumed identically: two uniforms per
-epoch, whether or not there is a fix).
+numbers as running them one at a time (the generator is consumed identically: one row of
+uniforms per epoch, whether or not there is a fix).
 
 Per-epoch pipeline (DESIGN section 1): georeference -> satellite ECEF (SGP4) -> az/el ->
-elevation mask -> line of sight against the scene -> used satellites -> DOP -> error -> Fixes.
+elevation mask -> line of sight against the scene (NLOS reflections, foliage) -> C/N0 and
+tracking -> used satellites -> DOP -> errors (the paper's, or per-satellite ranges solved by
+least squares) -> output stage (latency, smoothing, static hold) -> Fixes. The effects of
+DESIGN section 6 are switched on and set by the profile.
 """
 
 from __future__ import annotations
@@ -768,7 +771,8 @@ def simulate(
     vel_enu_mps : (n_t, 3) float, metres per second, ENU (NaN where unknown: speed 0)
     pose_valid : (n_t,) bool, False where no recent pose exists (no-fix epochs)
     state : the receiver state after the previous epoch
-    rng : the random generator (consumed: 2 uniforms per epoch)
+    rng : the random generator (consumed: one row of uniforms per epoch, its width set by the
+        profile: 2 for the paper's model; see :func:`draw_layout`)
 
     Returns
     -------
