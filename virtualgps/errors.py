@@ -170,8 +170,13 @@ def wls_error(
     ok = used.sum(axis=-1) >= n_states
     eye = np.eye(n_states)
     safe = np.where(ok[..., None, None], normal, eye)
-    ok &= np.abs(np.linalg.det(safe)) > 1e-12
-    sol = np.linalg.solve(np.where(ok[..., None, None], safe, eye), rhs[..., None])[..., 0]
+    try:
+        sol = np.linalg.solve(safe, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: find it
+        ok &= np.abs(np.linalg.det(safe)) > 1e-12
+        sol = np.linalg.solve(np.where(ok[..., None, None], safe, eye), rhs[..., None])[..., 0]
+    # A nearly singular geometry gives a huge solution: treat it as none (PDOP > 1e4).
+    ok &= np.all(np.abs(sol) < 1e7, axis=-1)
     err = np.zeros(los_enu.shape[:-2] + (3,))
     err[..., :2] = sol[..., :2]
     if n_states == 4:

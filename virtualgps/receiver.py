@@ -572,9 +572,12 @@ def position_errors(
             eps = sigma_i * z
         eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
         e3 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=4)
-        e2 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=3)
-        two_d = n_used == 3
         three_d = three_d & np.isfinite(e3[:, 0])
+        two_d = n_used == 3
+        e2 = np.zeros_like(e3)
+        k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
+        if k.size:
+            e2[k] = errors.wls_error(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
         var += np.square(errors.wls_sigma_enu_m(sky.los_enu, used, sigma_i))
