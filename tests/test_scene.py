@@ -142,6 +142,13 @@ def test_open_sky_blocks_nothing():
         ('mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
          '[classes]\nshrubs = ["Bush"]\n', "shrubs"),
         ('mesh = "m.obj"\n[georef\n', "line 2"),
+        # A mirror (left-handed) axis mapping, named with its line.
+        ('mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
+         '[axes]\neast = "+x"\nnorth = "+y"\nup = "-z"\n', "scene.toml:6: [axes]"),
+        ('mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
+         'alt_msl_m = 0.0\n', "exactly one of"),
+        ('mesh = "m.obj"\nmesh_scale = 2\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\n'
+         'alt_hae_m = 0.0\n', "scene.toml:2: unknown key 'mesh_scale'"),
     ],
 )
 def test_bad_scene_toml_names_the_file(tmp_path, text, expect):
@@ -152,3 +159,71 @@ def test_bad_scene_toml_names_the_file(tmp_path, text, expect):
     msg = str(err.value)
     assert "scene.toml" in msg or "nope.obj" in msg
     assert expect in msg
+
+
+def test_bad_obj_names_the_line(tmp_path):
+    (tmp_path / "m.obj").write_text("o Wall1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n")
+    (tmp_path / "scene.toml").write_text(
+        'mesh = "m.obj"\n[georef]\nlat_deg = 1.0\nlon_deg = 2.0\nalt_hae_m = 0.0\n'
+    )
+    with pytest.raises(InputFileError, match=r"m\.obj:5: face index '4' is out of range"):
+        load_scene(tmp_path)
+
+
+def test_glb_and_stl_take_object_names_from_the_scene_graph(tmp_path, wall_scene):
+    """The test scene exported through trimesh (GLB with named nodes) loads with the same
+    classes and blocks the same rays; a single-mesh STL is one object named after its file."""
+    import trimesh
+
+    verts_mesh = wall_scene.vertices_enu_m[:, [0, 2, 1]] * [1.0, 1.0, -1.0]  # back to y-up
+    graph = trimesh.Scene()
+    for i, name in enumerate(wall_scene.object_names):
+        faces = wall_scene.faces[wall_scene.face_object == i]
+        part = trimesh.Trimesh(verts_mesh, faces, process=False)
+        part.remove_unreferenced_vertices()
+        graph.add_geometry(part, node_name=name, geom_name=f"{name}-mesh")
+    graph.export(tmp_path / "walls.glb")
+    toml = (TEST_SCENE / "scene.toml").read_text().replace("test-wall.obj", "walls.glb")
+    (tmp_path / "scene.toml").write_text(toml)
+    glb = load_scene(tmp_path)
+    classes = dict(zip(wall_scene.object_names, wall_scene.object_class.tolist(), strict=True))
+    assert dict(zip(glb.object_names, glb.object_class.tolist(), strict=True)) == classes
+
+    rng = np.random.default_rng(5)
+    n = 500
+    origins = np.c_[rng.uniform(-40, 50, n), rng.uniform(-40, 40, n), rng.uniform(0.5, 10, n)]
+    dirs = geodesy.azel_to_enu_unit(rng.uniform(0, 360, n), rng.uniform(-10, 60, n))
+    for cls in ("occluder", "foliage", "all"):
+        assert (glb.blocked(origins, dirs, cls) == wall_scene.blocked(origins, dirs, cls)).all()
+
+    wall = wall_scene.object_names.index("Wall1")
+    faces = wall_scene.faces[wall_scene.face_object == wall]
+    trimesh.Trimesh(verts_mesh, faces).export(tmp_path / "Wall1.stl")
+    (tmp_path / "scene.toml").write_text(toml.replace("walls.glb", "Wall1.stl"))
+    stl = load_scene(tmp_path)
+    assert stl.object_names == ("Wall1",) and stl.object_class.tolist() == [CLASS_OCCLUDER]
+
+
+def test_magdeburg_class_engines_partition_the_faces(shared_data):
+    """Each face is in its own class's ray engine and in no other: a ray aimed at a face from
+    0.5 m in front of it meets it at 0.5 m in its class, never in another class (so trees are
+    not occluders, and roads, rails, surfaces and the tunnel never block)."""
+    scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
+    tri = scene.vertices_enu_m[scene.faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area2 = np.linalg.norm(normal, axis=1)
+    normal /= area2[:, None]
+    rng = np.random.default_rng(3)
+    for k, name in enumerate(("occluder", "foliage", "ignore")):
+        # Bottoms of objects standing on the ground coincide with ground faces: leave them out.
+        faces = np.flatnonzero((scene.face_class == k) & (area2 > 0.04) & (normal[:, 2] > -0.99))
+        faces = rng.choice(faces, min(2000, len(faces)), replace=False)
+        origins = tri[faces].mean(axis=1) + 0.5 * normal[faces]
+        for other in ("occluder", "foliage", "ignore"):
+            dist = scene.hit_distance_m(origins, -normal[faces], cls=other)
+            at_face = np.abs(dist - 0.5) < 1e-3
+            if other == name:
+                # Most faces are met first; the rest lie behind overlapping (coplanar) layers.
+                assert at_face.mean() > 0.75, name
+            else:
+                assert not at_face.any(), (name, other)
