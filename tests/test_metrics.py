@@ -17,11 +17,10 @@ from scipy.signal import lfilter
 from scipy.stats import wasserstein_distance
 
 from virtualgps import metrics as M
-from virtualgps.nmea import format_sentence
+from virtualgps.nmea import format_sentence, nmea_epochs_from_lines
 from virtualgps.reallogs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
-    nmea_epochs_from_lines,
     read_mtk_logger_csv,
     real_calibration_stats,
 )

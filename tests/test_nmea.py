@@ -761,6 +761,22 @@ def test_read_fixes_without_date(tmp_path):
     assert log.t_unix_s[0] == ts(2020, 5, 14, 12, 0, 0)
 
 
+def test_fixes_are_the_gga_epochs_of_the_one_reader(shared_data):
+    """Both views come from one grouping pass: every GGA fix is an epoch with the same time and
+    fields, dated by its own epoch's RMC (mtk-3301.log:55-56, an MT3301 that jumps from its RTC's
+    1980 date to 2008-08-23 once it has a fix)."""
+    path = shared_data / "gpsd-mtk" / "mtk-3301.log"
+    fixes, epochs = nmea.read_nmea_fixes(path), nmea.read_nmea_epochs(path)
+    k = np.searchsorted(epochs.t_unix_s, fixes.t_unix_s)
+    assert len(fixes) == 11 and np.array_equal(epochs.t_unix_s[k], fixes.t_unix_s)
+    for name in ("lat_deg", "lon_deg", "alt_msl_m", "speed_mps", "course_deg"):
+        np.testing.assert_array_equal(getattr(epochs, name)[k], getattr(fixes, name), name)
+    assert np.array_equal(epochs.quality[k], fixes.quality) and fixes.n_bad == epochs.n_bad == 4
+    i = int(np.flatnonzero(fixes.line == 55)[0])
+    assert utc(fixes.t_unix_s[i]) == datetime(2008, 8, 23, 8, 14, 34, 590000, tzinfo=UTC)
+    assert fixes.speed_mps[i] == pytest.approx(0.052 / MPS_TO_KNOTS)
+
+
 def test_read_fixes_of_a_magdeburg_phone_log_agrees_with_pynmea2(shared_data):
     path = sorted((shared_data / "magdeburg-campus" / "nmea").glob("NMEA_Log__*.txt"))[0]
     log = nmea.read_nmea_fixes(path)

@@ -31,11 +31,11 @@ import math
 from pathlib import Path
 
 from virtualgps.metrics import summary
+from virtualgps.nmea import read_nmea_epochs
 from virtualgps.reallogs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     MT3339_STATIC_LOG,
-    read_nmea_epochs,
     real_calibration_stats,
 )
 
