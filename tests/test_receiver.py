@@ -4,9 +4,10 @@ DOP of a known geometry, the elevation mask, and batch == epoch-by-epoch."""
 from __future__ import annotations
 
 import numpy as np
+import pynmeagps
 import pytest
 
-from virtualgps import geodesy
+from virtualgps import geodesy, nmea
 from virtualgps.profiles import load_profile
 from virtualgps.receiver import (
     Georef,
@@ -107,13 +108,40 @@ def test_dop_zenith_plus_three_horizon_satellites():
     assert pdop == pytest.approx(np.sqrt(8 / 3), rel=1e-9)
 
 
-def test_dop_needs_four_satellites_and_ignores_unused():
+def test_dop_needs_three_satellites_and_ignores_unused():
     los = geodesy.azel_to_enu_unit([0.0, 0.0, 120.0, 240.0, 60.0], [90.0, 0.0, 0.0, 0.0, 30.0])
-    hdop, _, _ = dop(los, np.array([True, True, True, False, False]))
+    hdop, _, _ = dop(los, np.array([True, True, False, False, False]))
     assert np.isnan(hdop)
     h_all, _, _ = dop(los[:4], np.ones(4, bool))
     h_masked, _, _ = dop(los, np.array([True, True, True, True, False]))
     assert h_masked == pytest.approx(h_all)
+
+
+def test_dop_of_a_2d_fix_three_horizon_satellites():
+    """Three satellites on the horizon 120 deg apart plus the held height's row [0, 0, 1, 0]:
+    rows [-sin az, -cos az, 0, 1] give G^T G = diag(3/2, 3/2, 1, 3) (the sums of sin az, cos az
+    and sin az cos az vanish), so Q = diag(2/3, 2/3, 1, 1/3): HDOP = sqrt(4/3) (the 3-state
+    east/north/clock value, as no satellite sees the height), VDOP = 1, PDOP = sqrt(7/3)."""
+    los = geodesy.azel_to_enu_unit([0.0, 120.0, 240.0, 60.0], [0.0, 0.0, 0.0, 30.0])
+    hdop, vdop, pdop = dop(los, np.array([True, True, True, False]))
+    assert hdop == pytest.approx(np.sqrt(4 / 3), rel=1e-9)
+    assert vdop == pytest.approx(1.0, rel=1e-9)
+    assert pdop == pytest.approx(np.sqrt(7 / 3), rel=1e-9)
+
+
+def test_dop_of_a_2d_fix_is_what_mtk_firmware_prints():
+    """gpsd-mtk/mtk-3301.log:72-73, an MT3301 in a 2D fix: ``$GPGSA,A,2,21,28,08,...,3.05,2.88,
+    1.00`` with GSV ``08,63,065 28,42,144 21,13,320`` (el, az in whole degrees)."""
+    los = geodesy.azel_to_enu_unit([65.0, 144.0, 320.0], [63.0, 42.0, 13.0])
+    hdop, vdop, pdop = dop(los, np.ones(3, bool))
+    assert f"{pdop:.2f},{hdop:.2f},{vdop:.2f}" == "3.05,2.88,1.00"
+    # vectorised: a batch of 2, 3 and 4 used satellites equals the epochs one by one
+    los5 = geodesy.azel_to_enu_unit([65.0, 144.0, 320.0, 200.0, 10.0], [63.0, 42.0, 13.0, 30, 5])
+    used = np.array([[1, 1, 0, 0, 0], [1, 1, 1, 0, 0], [1, 1, 1, 1, 0]], bool)
+    batch = np.stack(dop(np.broadcast_to(los5, (3, 5, 3)), used))
+    one = np.array([dop(los5, u) for u in used]).T
+    np.testing.assert_array_equal(batch, one)
+    assert np.isnan(batch[:, 0]).all() and np.isfinite(batch[:, 1:]).all()
 
 
 def test_mask_blocking_and_fix_rules():
@@ -143,9 +171,10 @@ def test_select_used_keeps_the_highest_twelve():
 def test_batch_equals_epoch_by_epoch():
     prof = load_profile("holux-m1000")
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
-    n_t = 5
+    n_t = 12
     pos = np.cumsum(np.ones((n_t, 3)), axis=0)
     batch, end_state = _run(prof, sky, n_t=n_t, pos=pos, seed=3)
+    assert (batch.quality > 0).sum() >= n_t // 2  # (tracking first acquires the satellites)
     rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
     rng = np.random.default_rng(3)
     state = ReceiverState()
@@ -154,7 +183,8 @@ def test_batch_equals_epoch_by_epoch():
         one, state = simulate(
             rx, t[i : i + 1], pos[i : i + 1], np.zeros((1, 3)), np.ones(1, bool), state, rng
         )
-        assert one.lat_deg[0] == batch.lat_deg[i] and one.lon_deg[0] == batch.lon_deg[i]
+        for name in ("lat_deg", "lon_deg", "alt_msl_m", "cn0_dbhz", "used", "hdop"):
+            np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i])
     assert state == end_state
 
 
@@ -238,7 +268,7 @@ def test_dop_error_off_is_the_ideal_receiver():
     np.testing.assert_array_equal(on.hdop, off.hdop)
 
 
-def test_two_d_fix_with_three_satellites_holds_the_last_altitude():
+def test_two_d_fix_with_three_satellites_holds_the_last_altitude_and_reports_dops():
     prof = load_profile("ideal", {"dop_error": {"enabled": True}})
     four = FixedSky([0.0, 90.0, 200.0, 300.0], [70.0, 30.0, 40.0, 20.0])
     rx = Receiver(profile=prof, ephemeris=four, scene=None, georef=GEOREF)
@@ -253,6 +283,19 @@ def test_two_d_fix_with_three_satellites_holds_the_last_altitude():
     held_hae = fixes2.alt_msl_m + fixes2.geoid_sep_m
     np.testing.assert_allclose(held_hae, fixes.alt_msl_m[-1] + fixes.geoid_sep_m[-1], atol=1e-9)
     assert (fixes2.sats_used == 3).all()
+    # GGA and GSA carry the 2D fix's DOPs (see test_dop_of_a_2d_fix_*)
+    want = dop(geodesy.azel_to_enu_unit([0.0, 90.0, 200.0], [70.0, 30.0, 40.0]), np.ones(3, bool))
+    got = np.stack([fixes2.hdop, fixes2.vdop, fixes2.pdop], axis=-1)
+    np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-6)
+    msgs = {}
+    for line in nmea.epoch_sentences(fixes2, 0, nmea.NmeaFormat()).decode().splitlines():
+        m = pynmeagps.NMEAReader.parse(line, validate=pynmeagps.VALCKSUM, msgmode=pynmeagps.GET)
+        msgs[m.msgID] = m
+    gga, gsa = msgs["GGA"], msgs["GSA"]
+    assert gga.quality == 1 and gga.HDOP == pytest.approx(want[0], abs=0.005)
+    assert gsa.navMode == 2 and gsa.HDOP == pytest.approx(want[0], abs=0.005)
+    assert gsa.VDOP == 1.0  # printed 1.00, as MTK firmware prints it
+    assert gsa.PDOP == pytest.approx(want[2], abs=0.005)
     # Without a 3D fix before, 3 satellites give no fix.
     cold, _ = simulate(rx_wall, t[3:], np.zeros((3, 3)), np.zeros((3, 3)), np.ones(3, bool),
                        ReceiverState(), np.random.default_rng(1))
@@ -407,3 +450,140 @@ def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges(
     fixes, _ = simulate(rx, t[:5], np.zeros((5, 3)), np.zeros((5, 3)), np.ones(5, bool), hot,
                         np.random.default_rng(0))
     assert fixes.sats_used[fixes.quality > 0].min() == 12
+
+
+# --------------------------------------------------------------------------------------------
+# multipath: line-of-sight Gauss-Markov range errors near walls and at low elevation.
+
+QUIET_UERE = {**UNIT_UERE, "sis_m": 1e-9}  # dop_error's own range errors vanish
+
+
+def test_multipath_sigma_decays_with_elevation_and_wall_distance():
+    from virtualgps.errors import multipath_sigma_m
+
+    el = np.array([0.0, 15.0, 30.0, 60.0])
+    # Next to a wall (d = 0): sigma_m exp(-el / el0).
+    np.testing.assert_allclose(multipath_sigma_m(el, np.array(0.0), 4.0, 15.0, 30.0, 0.0),
+                               4.0 * np.exp(-el / 15.0), rtol=1e-12)
+    # At the horizon, falling linearly with the distance to 0 at max_dist_m and beyond it
+    # (inf: no wall near); without a scene (NaN) the open-sky factor stands in.
+    d = np.array([0.0, 7.5, 15.0, 30.0, 45.0, np.inf, np.nan])
+    got = multipath_sigma_m(np.zeros((7, 1)), d, 4.0, 15.0, 30.0, 0.25)[:, 0]
+    np.testing.assert_allclose(got, 4.0 * np.array([1.0, 0.75, 0.5, 0.0, 0.0, 0.0, 0.25]),
+                               rtol=1e-12)
+
+
+def _mp_sky(wall_dist_m, blocked):
+    """A handmade Sky of six satellites for position_errors, the antenna wall_dist_m from a wall."""
+    from virtualgps.receiver import Sky
+
+    az = np.array([0.0, 70.0, 140.0, 210.0, 280.0, 330.0])
+    el = np.array([80.0, 10.0, 25.0, 40.0, 15.0, 55.0])
+    los = geodesy.azel_to_enu_unit(az, el)[None]
+    one = np.ones((1, 6))
+    return Sky(np.zeros(1), np.zeros(1), np.zeros(1), az[None], el[None], los,
+               one.astype(bool), np.asarray(blocked)[None], np.zeros((1, 6), bool),
+               np.zeros((1, 6)), np.zeros((1, 6)), np.array([wall_dist_m]))
+
+
+@pytest.mark.parametrize("wall_dist_m", [6.0, 29.0, 30.0, 80.0, np.inf])
+def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
+    """The fix error is the WLS solution of sigma(el, d) z on the unblocked satellites (the
+    first epoch draws the stationary process: x = z), and nothing beyond max_dist_m."""
+    from virtualgps import errors
+    from virtualgps.receiver import draw_layout, position_errors
+
+    mp = {"enabled": True, "sigma_m": 4.0, "el0_deg": 15.0, "max_dist_m": 30.0}
+    on = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}, "multipath": mp})
+    off = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}})
+    blocked = np.array([False, False, True, False, False, False])  # received off a wall: nlos
+    sky = _mp_sky(wall_dist_m, blocked)
+    used = np.ones((1, 6), bool)
+    layout_on, layout_off = draw_layout(on, 6), draw_layout(off, 6)
+    # The effect's uniforms come after every other block: the others keep their columns.
+    assert {k: v for k, v in layout_on.items() if k not in ("multipath", "total")} == \
+        {k: v for k, v in layout_off.items() if k != "total"}
+    assert layout_on["multipath"] == layout_off["total"]
+    u = np.random.default_rng(3).random((1, layout_on["total"]))
+    args = (sky, used, used.sum(axis=1), np.array([np.inf]), ReceiverState())
+    e_on = position_errors(on, *args, u, layout_on)
+    e_off = position_errors(off, *args, u[:, : layout_off["total"]], layout_off)
+    assert np.abs(e_off.enu_m).max() < 1e-6
+    c = layout_on["multipath"]
+    z = errors.normals_from_uniforms(u[:, c : c + 6])
+    prox = max(0.0, 1.0 - wall_dist_m / 30.0)
+    eps = np.where(blocked, 0.0, 4.0 * np.exp(-sky.el_deg / 15.0) * prox * z)
+    sigma_i = errors.uere_sigma_m(sky.el_deg, *QUIET_UERE.values())
+    want, _ = errors.wls_fix(sky.los_enu, used, sigma_i, eps)
+    np.testing.assert_allclose(e_on.enu_m, want, atol=1e-9)
+    np.testing.assert_array_equal(e_on.mp_m, z[0])
+    if wall_dist_m >= 30.0:  # far from any wall: exactly the receiver without the effect
+        np.testing.assert_array_equal(e_on.enu_m, e_off.enu_m)
+    else:
+        assert np.abs(e_on.enu_m).max() > 0.01
+    np.testing.assert_array_equal(e_on.sigma_enu_m, e_off.sigma_enu_m)  # GST does not know it
+
+
+def _mp_run(prof, sky, n, chunk, seed):
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    rng, state, out = np.random.default_rng(seed), ReceiverState(), []
+    for a in range(0, n, chunk):  # the state carries the processes across calls
+        t = 1.49e9 + np.arange(a, min(a + chunk, n), dtype=float)
+        fixes, state = simulate(rx, t, np.zeros((t.size, 3)), np.zeros((t.size, 3)),
+                                np.ones(t.size, bool), state, rng)
+        out.append(fixes)
+    return out, state
+
+
+def test_multipath_autocorrelation_is_1_over_e_at_tau_and_its_spread_the_sigma():
+    """Open sky with open_sky_factor 1: constant sigma_m exp(-el / el0) per satellite, so each
+    axis of the fix error is a fixed mix of first-order Gauss-Markov processes."""
+    from virtualgps import errors
+
+    tau = 20.0
+    prof = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE},
+                                  "multipath": {"enabled": True, "tau_s": tau, "sigma_m": 3.0,
+                                                "el0_deg": 20.0, "open_sky_factor": 1.0}})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    chunks, _ = _mp_run(prof, sky, 200_000, 50_000, seed=6)
+    err = np.concatenate([_enu_errors(f) for f in chunks])
+    # Expected spread: K diag(sigma^2) K^T with K the WLS gain of this geometry.
+    los = geodesy.azel_to_enu_unit(sky.az_deg, sky.el_deg)
+    sigma = 3.0 * np.exp(-sky.el_deg / 20.0)
+    w = 1.0 / errors.uere_sigma_m(sky.el_deg, *QUIET_UERE.values()) ** 2
+    g = np.c_[-los, np.ones(7)]
+    gain = np.linalg.solve(g.T @ (w[:, None] * g), g.T * w)[:3]
+    np.testing.assert_allclose(err.std(axis=0), np.sqrt((gain**2 * sigma**2).sum(axis=1)),
+                               rtol=0.05)
+    lag = int(tau)
+    for axis in range(3):
+        x = err[:, axis] - err[:, axis].mean()
+        rho = np.dot(x[:-lag], x[lag:]) / np.dot(x, x)
+        assert rho == pytest.approx(np.exp(-1.0), rel=0.10), (axis, rho)
+
+
+def test_multipath_keeps_batch_equal_to_epoch_by_epoch():
+    prof = load_profile("ideal", {"dop_error": {"enabled": True},
+                                  "correlated_error": {"enabled": True},
+                                  "multipath": {"enabled": True, "open_sky_factor": 0.7}})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    (batch,), end = _mp_run(prof, sky, 12, 12, seed=9)
+    ones, state = _mp_run(prof, sky, 12, 1, seed=9)
+    for i, one in enumerate(ones):
+        for name in ("lat_deg", "lon_deg", "alt_msl_m"):
+            assert getattr(one, name)[0] == pytest.approx(getattr(batch, name)[i], abs=1e-9)
+    np.testing.assert_allclose(state.mp_m, end.mp_m, rtol=1e-12)
+    off, _ = _mp_run(load_profile("ideal", {"dop_error": {"enabled": True},
+                                            "correlated_error": {"enabled": True}}),
+                     sky, 12, 12, seed=9)
+    assert np.abs(off[0].lat_deg - batch.lat_deg).max() > 1e-8  # and it does something
+
+
+def test_multipath_needs_dop_error():
+    from virtualgps.exceptions import ConfigError
+
+    with pytest.raises(ConfigError, match="multipath needs dop_error"):
+        load_profile("ideal", {"multipath": {"enabled": True}})
+    with pytest.raises(ConfigError, match=r"multipath.open_sky_factor must be in \[0, 1\]"):
+        load_profile("ideal", {"dop_error": {"enabled": True},
+                               "multipath": {"enabled": True, "open_sky_factor": 2.0}})

@@ -245,3 +245,54 @@ def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
                                                 "max_db": 20.0}})
     out = compute_sky(Receiver(capped, sky, scene, g), np.array([1.49e9]), origin)
     assert out.foliage_db[0, 0] == pytest.approx(20.0)  # saturates
+
+
+def test_wall_distance_is_to_the_nearest_footprint_above_the_antenna(two_walls):
+    from virtualgps.scene import CLASS_OCCLUDER
+
+    sel = two_walls.face_class == CLASS_OCCLUDER
+    facades = signals.Facades(two_walls.vertices_enu_m, two_walls.faces[sel],
+                              two_walls.face_object[sel])
+    ant = np.array([
+        [3.0, 10.0, 1.5],  # between the walls: A's north face at 0.5 is 9.5 m away
+        [3.0, 10.0, 20.0],  # above A (12 m high): B's south face at 20, 10 m away
+        [3.0, 10.0, 40.0],  # above both
+        [60.0, 10.0, 1.5],  # beyond the walls' east ends (x = 50): to A's corner
+        [3.0, 60.0, 1.5],  # 39.5 m north of B: out of reach
+    ])
+    np.testing.assert_allclose(facades.wall_dist_m(ant, 30.0),
+                               [9.5, 10.0, np.inf, np.hypot(10.0, 9.5), np.inf], atol=1e-9)
+    assert facades.wall_dist_m(ant[:1], 5.0)[0] == np.inf  # beyond max_dist_m: none
+
+
+def test_multipath_in_the_receiver_acts_near_a_wall_and_not_far_from_it(two_walls):
+    from virtualgps import geodesy
+    from virtualgps.receiver import Georef
+
+    g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
+
+    class Sky(FixedSky):
+        def __init__(self, az, el):
+            super().__init__(az, el)
+            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
+            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+
+    sky = Sky([0.0, 90.0, 200.0, 300.0, 30.0], [80.0, 70.0, 75.0, 72.0, 60.0])  # all clear
+    # "Off" is the effect with sigma_m = 0: the same row of uniforms per epoch (switching the
+    # effect on widens the row, which moves every later epoch's draws).
+    base = {"dop_error": {"enabled": True}}
+    on = load_profile("ideal", {**base, "multipath": {"enabled": True}})
+    off = load_profile("ideal", {**base, "multipath": {"enabled": True, "sigma_m": 0.0}})
+
+    def run(prof, where):
+        ant = np.array([where] * 3)
+        args = (1.49e9 + np.arange(3.0), ant, np.zeros((3, 3)), np.ones(3, bool),
+                ReceiverState(), np.random.default_rng(0))
+        return simulate(Receiver(prof, sky, two_walls, g), *args)[0]
+
+    near_on, near_off = run(on, [3.0, 10.0, 1.5]), run(off, [3.0, 10.0, 1.5])
+    assert np.abs(near_on.lat_deg - near_off.lat_deg).max() > 1e-9  # ~0.1 mm or more
+    far_on, far_off = run(on, [3.0, 100.0, 1.5]), run(off, [3.0, 100.0, 1.5])
+    np.testing.assert_array_equal(far_on.lat_deg, far_off.lat_deg)
+    np.testing.assert_array_equal(far_on.lon_deg, far_off.lon_deg)
+    np.testing.assert_array_equal(far_on.alt_msl_m, far_off.alt_msl_m)

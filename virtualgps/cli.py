@@ -358,8 +358,9 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
     """One row per satellite above the horizon: prn, az_deg, el_deg, state, cn0_dbhz.
 
     States: ``below_mask`` (above the horizon, below the mask), ``blocked`` (line of sight
-    hits an occluder, no signal), ``nlos`` (blocked, received off a wall: the ``nlos`` effect),
-    ``attenuated`` (through foliage: the ``foliage`` effect), ``visible``. ``cn0_dbhz`` is the
+    hits an occluder or a blocking bin of the profile's ``[sky_mask]``, no signal), ``nlos``
+    (blocked, received off a wall: the ``nlos`` effect), ``attenuated`` (through foliage or a
+    sky-mask bin: the ``foliage`` effect), ``visible``. ``cn0_dbhz`` is the
     arriving signal's C/N0 without fading (null where none).
     """
     from virtualgps.receiver import expected_cn0_dbhz

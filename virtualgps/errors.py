@@ -100,6 +100,40 @@ def uere_sigma_m(
     )
 
 
+def multipath_sigma_m(
+    el_deg: np.ndarray,
+    wall_dist_m: np.ndarray,
+    sigma_m: float,
+    el0_deg: float,
+    max_dist_m: float,
+    open_sky_factor: float,
+) -> np.ndarray:
+    """One-sigma line-of-sight multipath range error (``multipath``; see MultipathParams).
+
+    sigma = sigma_m exp(-el / el0) p, with the proximity p = max(0, 1 - d / max_dist) for the
+    distance d to the nearest wall, or ``open_sky_factor`` where no scene tells (d NaN).
+
+    Parameters
+    ----------
+    el_deg : (..., n_sat) float, degrees (negative counts as 0; NaN gives NaN)
+    wall_dist_m : (...) float, metres, horizontal distance from the antenna to the nearest wall
+        rising above it (inf: none near; NaN: no scene)
+    sigma_m : metres, at the horizon next to a wall
+    el0_deg : degrees, the elevation scale of the decay
+    max_dist_m : metres, walls at this distance or further add nothing
+    open_sky_factor : the proximity without a scene, 0..1
+
+    Returns
+    -------
+    sigma_m : (..., n_sat) float, metres
+    """
+    d = np.asarray(wall_dist_m, dtype=float)
+    proximity = np.where(np.isnan(d), open_sky_factor,
+                         np.clip(1.0 - d / max_dist_m, 0.0, 1.0))  # (inf: 0)
+    el = np.maximum(np.asarray(el_deg, dtype=float), 0.0)
+    return sigma_m * np.exp(-el / el0_deg) * proximity[..., None]
+
+
 def gauss_markov(
     x0: np.ndarray, dt_s: np.ndarray, tau_s: float, sigma: np.ndarray, z: np.ndarray
 ) -> np.ndarray:
@@ -124,29 +158,33 @@ def gauss_markov(
     phi = np.exp(-np.asarray(dt_s, dtype=float) / tau_s)[:, None]  # (n_t, 1)
     drive = np.broadcast_to(sigma, z.shape) * np.sqrt(1.0 - phi**2) * z
     prev = np.asarray(x0, dtype=float)
-    if drive.shape[0] > 8 and np.all(phi == phi[0]):
-        # Constant step (every batch on the epoch grid): a first-order IIR filter, in C.
+    x = np.empty_like(drive)
+    if drive.shape[0] > 8 and np.all(phi[1:] == phi[1]):
+        # Constant step after the first (every batch on the epoch grid; the very first epoch
+        # has an infinite one): a first-order IIR filter, in C, computing the same sums.
         from scipy.signal import lfilter
 
-        p = float(phi[0, 0])
-        return lfilter([1.0], [1.0, -p], drive, axis=0, zi=(p * prev)[None, :])[0]
+        x[0] = phi[0] * prev + drive[0]
+        p = float(phi[1, 0])
+        x[1:] = lfilter([1.0], [1.0, -p], drive[1:], axis=0, zi=(p * x[0])[None, :])[0]
+        return x
     # A few epochs (the live loop) or variable steps: the plain recursion is cheaper.
-    x = np.empty_like(drive)
     for k in range(x.shape[0]):
         prev = phi[k] * prev + drive[k]
         x[k] = prev
     return x
 
 
-def wls_error(
+def wls_fix(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, range_err_m: np.ndarray,
     n_states: int = 4,
-) -> np.ndarray:
-    """Position error of a weighted least-squares fix made from erroneous ranges.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position error of a weighted least-squares fix made from erroneous ranges, and its sigma.
 
     Pseudorange residual model rho_err = -u . dx + c dt + eps; the WLS estimate
-    dx = (G^T W G)^-1 G^T W eps, with G rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D, height
-    held), W = diag(1 / sigma^2) over the used satellites (Misra & Enge, section 6.1).
+    dx = Q G^T W eps with Q = (G^T W G)^-1, G rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D,
+    height held), W = diag(1 / sigma^2) over the used satellites; the estimate's covariance is
+    Q (Misra & Enge, section 6.1). One normal matrix and one inverse serve both.
 
     Parameters
     ----------
@@ -160,49 +198,35 @@ def wls_error(
     -------
     err_enu_m : (..., 3) float, metres (up is 0 for a 2D fix); NaN where the geometry does not
         determine the states
+    sigma_enu_m : (..., 3) float, metres, sqrt(diag Q) of east, north and up (up NaN for a 2D
+        fix); NaN with fewer than ``n_states`` used satellites or a singular geometry
     """
     u = -np.nan_to_num(los_enu)
     ones = np.ones(los_enu.shape[:-1] + (1,))
     g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
-    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None]
-    normal = np.einsum("...si,...sj->...ij", g * w, g)
-    rhs = np.einsum("...si,...s->...i", g * w, np.where(used, range_err_m, 0.0))
+    gw_t = np.swapaxes(g * np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None], -1, -2)
+    # matmul, not einsum: the same sums, ten times faster over thousands of epochs
+    normal = gw_t @ g
+    rhs = gw_t @ np.where(used, range_err_m, 0.0)[..., None]
     ok = used.sum(axis=-1) >= n_states
     eye = np.eye(n_states)
     safe = np.where(ok[..., None, None], normal, eye)
+    regular = np.abs(np.linalg.det(safe)) > 1e-12
     try:
-        sol = np.linalg.solve(safe, rhs[..., None])[..., 0]
-    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: find it
-        ok &= np.abs(np.linalg.det(safe)) > 1e-12
-        sol = np.linalg.solve(np.where(ok[..., None, None], safe, eye), rhs[..., None])[..., 0]
+        q = np.linalg.inv(safe)
+    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: leave it out
+        ok &= regular
+        q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
+    sol = (q @ rhs)[..., 0]
     # A nearly singular geometry gives a huge solution: treat it as none (PDOP > 1e4).
-    ok &= np.all(np.abs(sol) < 1e7, axis=-1)
+    ok_err = ok & np.all(np.abs(sol) < 1e7, axis=-1)
     err = np.zeros(los_enu.shape[:-2] + (3,))
     err[..., :2] = sol[..., :2]
+    sigma = np.full(los_enu.shape[:-2] + (3,), np.nan)
+    diag = np.sqrt(np.abs(np.diagonal(q, axis1=-2, axis2=-1)))
+    sigma[..., :2] = diag[..., :2]
     if n_states == 4:
         err[..., 2] = sol[..., 2]
-    return np.where(ok[..., None], err, np.nan)
-
-
-def wls_sigma_enu_m(los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray) -> np.ndarray:
-    """One-sigma east/north/up errors of a weighted least-squares fix: sqrt(diag (G^T W G)^-1).
-
-    Parameters
-    ----------
-    los_enu : (..., n_sat, 3) unit vectors to the satellites, ENU
-    used : (..., n_sat) bool
-    sigma_m : (..., n_sat) float, metres, range error sigmas (W = 1 / sigma^2)
-
-    Returns
-    -------
-    sigma_enu_m : (..., 3) float, metres; NaN with fewer than 4 used satellites
-    """
-    g = np.concatenate([-np.nan_to_num(los_enu), np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
-    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None]
-    normal = np.einsum("...si,...sj->...ij", g * w, g)
-    ok = used.sum(axis=-1) >= 4
-    safe = np.where(ok[..., None, None], normal, np.eye(4))
-    ok &= np.abs(np.linalg.det(safe)) > 1e-12
-    q = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(4)))
-    diag = np.sqrt(np.abs(np.diagonal(q, axis1=-2, axis2=-1)[..., :3]))
-    return np.where(ok[..., None], diag, np.nan)
+        sigma[..., 2] = diag[..., 2]
+    return (np.where(ok_err[..., None], err, np.nan),
+            np.where((ok & regular)[..., None], sigma, np.nan))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -214,6 +214,38 @@ class NlosParams:
 
 
 @dataclass(frozen=True)
+class MultipathParams:
+    """``multipath``: line-of-sight multipath, an extra range error on each satellite received
+    directly (not blocked), correlated in time, large near walls and at low elevation.
+
+    Each such satellite's range gets a first-order Gauss-Markov error with correlation time
+    ``tau_s`` and standard deviation sigma_m x exp(-el / el0_deg) x proximity, proximity =
+    max(0, 1 - d / max_dist_m) for d the horizontal distance from the antenna to the nearest
+    wall of the scene that rises above it (the ``nlos`` facades); ``open_sky_factor`` is the
+    proximity without a scene. It adds to ``dop_error``'s range errors (which it needs) and is
+    solved with them; the receiver's weights and reported sigmas (GST) do not know it.
+
+    Grounds and defaults (typical values, to be calibrated): code multipath is worst at low
+    elevation, where DO-229 (J.2.4) models it as a + b exp(-el / 10 deg); a wall's reflection
+    keeps the satellite's elevation and its delay, 2 d cos(el), falls slowly with it, hence
+    el0_deg = 15. Near buildings a C/A receiver's range errors reach metres (van Nee,
+    "Multipath effects on GPS code phase measurements", NAVIGATION 39(2), 1992), hence
+    sigma_m = 4 m next to a wall at the horizon. For a static antenna the reflection's phase
+    turns with the satellite's motion in tens of seconds to minutes (van Nee: slow fading for
+    stationary users); integrity studies model raw code multipath as Gauss-Markov with time
+    constants of 10-900 s (after Joerger and Pervan, NAVIGATION, 2016): tau_s = 30 s.
+    max_dist_m = 30 m is the ``nlos`` search's reach.
+    """
+
+    enabled: bool = False
+    sigma_m: float = 4.0
+    el0_deg: float = 15.0
+    max_dist_m: float = 30.0
+    tau_s: float = 30.0
+    open_sky_factor: float = 0.0
+
+
+@dataclass(frozen=True)
 class FoliageParams:
     """``foliage``: foliage-class objects attenuate instead of block: ``db_per_m`` times the
     path length through the crowns, at most ``max_db`` (a saturating specific attenuation; ITU-R
@@ -224,6 +256,38 @@ class FoliageParams:
     db_per_m: float = 1.0
     max_db: float = 20.0
     billboard_m: float = 4.0
+
+
+# Largest |cell index| a sky mask may hold (cells of 1 m reach 1000 km from the scene origin).
+SKY_MASK_MAX_CELL = 1_000_000
+
+
+@dataclass(frozen=True)
+class SkyMaskParams:
+    """``[sky_mask]``, the learned part of ``foliage``: attenuation by sky direction for
+    obstacles the scene lacks (trees, buildings or vehicles missing from the mesh).
+
+    The sky is cut into bins of ``el_bin_deg`` x ``az_bin_deg``; ``atten_db[r][c]`` is the
+    attenuation (dB, >= 0) of a satellite with ``r * el_bin_deg <= el < (r + 1) * el_bin_deg``
+    and ``c * az_bin_deg <= az < (c + 1) * az_bin_deg`` (azimuth from north, clockwise): rows
+    from the horizon up, each with 360 / az_bin_deg values; rows above the last given are clear.
+    A value >= ``block_db`` (TOML's ``inf`` too) blocks the satellite. With ``cell_m`` > 0,
+    ``cells`` holds grids for square cells of the scene's east/north plane, cell ``(i, j)`` =
+    ``(floor(east / cell_m), floor(north / cell_m))``, written ``"i,j"`` in TOML; a cell's grid
+    replaces ``atten_db`` while the antenna is in it. ``block_db`` = 30 dB: more than the margin
+    between a clear satellite's C/N0 and a receiver's tracking threshold (~25 dB with the
+    ``cn0_tracking`` defaults), so a bin that strong is a wall whatever the model.
+
+    atten_db : rows of floats; cells : ((i, j), rows) pairs in key order (from the TOML table)
+    """
+
+    enabled: bool = False
+    az_bin_deg: float = 10.0
+    el_bin_deg: float = 10.0
+    block_db: float = 30.0
+    atten_db: tuple[tuple[float, ...], ...] = ()
+    cell_m: float = 0.0
+    cells: tuple[tuple[tuple[int, int], tuple[tuple[float, ...], ...]], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -256,7 +320,9 @@ class Profile:
     static_hold: StaticHoldParams = field(default_factory=StaticHoldParams)
     sbas: SbasParams = field(default_factory=SbasParams)
     nlos: NlosParams = field(default_factory=NlosParams)
+    multipath: MultipathParams = field(default_factory=MultipathParams)
     foliage: FoliageParams = field(default_factory=FoliageParams)
+    sky_mask: SkyMaskParams = field(default_factory=SkyMaskParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -325,6 +391,7 @@ _TABLES = {
     "static_hold": StaticHoldParams,
     "sbas": SbasParams,
     "nlos": NlosParams,
+    "multipath": MultipathParams,
     "foliage": FoliageParams,
 }
 
@@ -430,6 +497,73 @@ def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
     return cls(**kwargs)
 
 
+def _bins(value: float, whole_deg: float, section: str, key: str) -> int:
+    """How many bins of ``value`` degrees make ``whole_deg``; SettingError unless a whole number."""
+    n = round(whole_deg / value) if value > 0 else 0
+    if n < 1 or abs(n * value - whole_deg) > 1e-9:
+        raise SettingError(section, key, f"{section}.{key} must divide {whole_deg:g} deg into "
+                           f"whole bins (e.g. 5, 10, 15), got {value!r}")
+    return n
+
+
+def _mask_grid(
+    value: Any, section: str, key: str, n_el: int, n_az: int
+) -> tuple[tuple[float, ...], ...]:
+    """Validate one sky-mask grid (a list of rows of dB values) and freeze it."""
+    name = f"{section}.{key}" if section == "sky_mask" else f'{section}."{key}"'
+    layout = (f"a list of at most {n_el} rows (elevation bins from the horizon up), each a list "
+              f"of {n_az} attenuations in dB (azimuth bins from north)")
+    if not isinstance(value, list) or not all(isinstance(r, list) for r in value):
+        raise SettingError(section, key, f"{name} must be {layout}; got {value!r:.60}")
+    if len(value) > n_el:
+        raise SettingError(section, key, f"{name} has {len(value)} rows, more than the {n_el} "
+                           "elevation bins (90 / el_bin_deg)")
+    for r, row in enumerate(value, start=1):
+        if len(row) != n_az:
+            raise SettingError(section, key, f"{name} row {r} has {len(row)} values; expected "
+                               f"{n_az} (360 / az_bin_deg)")
+        for c, x in enumerate(row, start=1):
+            if isinstance(x, bool) or not isinstance(x, int | float) or not x >= 0.0:
+                raise SettingError(section, key, f"{name} row {r} column {c} must be an "
+                                   f"attenuation >= 0 dB (inf blocks), got {x!r}")
+    return tuple(tuple(float(x) for x in row) for row in value)
+
+
+def _build_sky_mask(table: dict[str, Any]) -> SkyMaskParams:
+    """Validate ``[sky_mask]`` (and ``[sky_mask.cells]``) into :class:`SkyMaskParams`."""
+    grids = ("atten_db", "cells")
+    mask = _build_table(SkyMaskParams, {k: v for k, v in table.items() if k not in grids},
+                        "sky_mask")
+    n_az = _bins(mask.az_bin_deg, 360.0, "sky_mask", "az_bin_deg")
+    n_el = _bins(mask.el_bin_deg, 90.0, "sky_mask", "el_bin_deg")
+    if not mask.block_db > 0.0:
+        raise SettingError("sky_mask", "block_db", f"sky_mask.block_db must be > 0 dB, got "
+                           f"{mask.block_db!r}")
+    if not 0.0 <= mask.cell_m < float("inf"):
+        raise SettingError("sky_mask", "cell_m", "sky_mask.cell_m must be >= 0 metres (0: no "
+                           f"cells), got {mask.cell_m!r}")
+    atten = _mask_grid(table.get("atten_db", []), "sky_mask", "atten_db", n_el, n_az)
+    cells_in = table.get("cells", {})
+    if not isinstance(cells_in, dict):
+        raise SettingError("sky_mask", "cells", '[sky_mask.cells] must be a table of grids '
+                           'keyed "i,j" (east, north cell indices)')
+    if cells_in and mask.cell_m == 0.0:
+        raise SettingError("sky_mask.cells", None, "sky_mask.cells needs sky_mask.cell_m > 0, "
+                           "the side of the cells in metres")
+    cells = {}
+    for key, grid in cells_in.items():
+        m = re.fullmatch(r"\s*(-?\d+)\s*,\s*(-?\d+)\s*", key)
+        ij = (int(m.group(1)), int(m.group(2))) if m else None
+        if ij is None or max(abs(ij[0]), abs(ij[1])) > SKY_MASK_MAX_CELL:
+            raise SettingError("sky_mask.cells", key, f'sky_mask.cells."{key}": a cell is '
+                               f'written "i,j" (integers within +-{SKY_MASK_MAX_CELL}: east, '
+                               "north indices of floor(position / cell_m))")
+        if ij in cells:
+            raise SettingError("sky_mask.cells", key, f'sky_mask.cells."{key}" repeats cell {ij}')
+        cells[ij] = _mask_grid(grid, "sky_mask.cells", key, n_el, n_az)
+    return replace(mask, atten_db=atten, cells=tuple(sorted(cells.items())))
+
+
 def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  # noqa: C901
     """Validate a profile table and build the :class:`Profile`.
 
@@ -453,6 +587,10 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
             if not isinstance(value, dict):
                 raise SettingError("", key, f"[{key}] must be a table")
             kwargs[key] = _build_table(_TABLES[key], value, key)
+        elif key == "sky_mask":
+            if not isinstance(value, dict):
+                raise SettingError("", key, "[sky_mask] must be a table")
+            kwargs[key] = _build_sky_mask(value)
         elif key == "nmea":
             if not isinstance(value, dict):
                 raise SettingError("", key, "[nmea] must be a table")
@@ -519,6 +657,18 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
                            "latency.latency_s >= 0 and static_hold.threshold_mps >= 0")
     if ce.tau_s <= 0 or ce.sigma_m < 0:
         raise SettingError("correlated_error", "tau_s", "need tau_s > 0 and sigma_m >= 0")
+    mp = prof.multipath
+    if mp.enabled and not prof.dop_error.enabled:
+        raise SettingError("multipath", "enabled", "multipath needs dop_error.enabled (its "
+                           "range errors are solved by least squares with the others)")
+    for key, rule, good in (
+        ("tau_s", "> 0 s", mp.tau_s > 0), ("sigma_m", ">= 0 m", mp.sigma_m >= 0),
+        ("el0_deg", "> 0 deg", mp.el0_deg > 0), ("max_dist_m", "> 0 m", mp.max_dist_m > 0),
+        ("open_sky_factor", "in [0, 1]", 0 <= mp.open_sky_factor <= 1),
+    ):
+        if not good:
+            raise SettingError("multipath", key, f"multipath.{key} must be {rule}, got "
+                               f"{getattr(mp, key)!r}")
     if prof.noise.min_noise_m < 0 or prof.noise.max_noise_m < prof.noise.min_noise_m:
         raise SettingError(
             "noise",
@@ -542,7 +692,9 @@ def _in_file(exc: SettingError, path: str | Path | None) -> VirtualGPSError:
 
 
 def _has(table: dict[str, Any], section: str, key: str | None) -> bool:
-    where = table.get(section) if section else table
+    where: Any = table
+    for part in section.split(".") if section else ():  # "sky_mask.cells": a nested table
+        where = where.get(part) if isinstance(where, dict) else None
     if not isinstance(where, dict):
         return False
     return key is None or key in where

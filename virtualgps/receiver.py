@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from virtualgps import errors, geodesy, signals
+from virtualgps import errors, geodesy, signals, skymask
 from virtualgps.profiles import Profile
 from virtualgps.records import (
     MODE_2D,
@@ -86,6 +86,8 @@ class ReceiverState:
     start_bias_enu_m : (3,) metres, the start-up error that decays after the first fix
     fade_db, tracked, acq_run : (n_sat,) the ``cn0_tracking`` state: C/N0 fades (dB), tracked
         flags, epochs spent at or above the acquisition threshold; None before the first epoch
+    mp_m : (n_sat,) float, the ``multipath`` Gauss-Markov processes (unit variance; scaled by
+        each epoch's sigma) after the last epoch, None before the first
     """
 
     n_epochs: int = 0
@@ -100,6 +102,7 @@ class ReceiverState:
     fade_db: np.ndarray | None = field(default=None, compare=False)
     tracked: np.ndarray | None = field(default=None, compare=False)
     acq_run: np.ndarray | None = field(default=None, compare=False)
+    mp_m: np.ndarray | None = field(default=None, compare=False)
 
 
 START_KINDS = ("hot", "warm", "cold")
@@ -185,7 +188,8 @@ class Receiver:
         simulated time lies far from the TLE epoch)
     origin_ecef_m : (3,) ECEF of the georeference point (derived)
     origin_rot : (3, 3) ECEF -> scene ENU rotation (derived; rows E, N, U)
-    facades : the scene's reflecting walls when the profile models ``nlos`` (derived)
+    facades : the scene's reflecting walls when the profile models ``nlos`` or ``multipath``
+        (derived)
     """
 
     profile: Profile
@@ -207,7 +211,8 @@ class Receiver:
         object.__setattr__(self, "origin_rot", geodesy.ecef_to_enu_matrix(g.lat0_deg, g.lon0_deg))
         facades = None
         faces = getattr(self.scene, "faces", None)
-        if self.profile.nlos.enabled and faces is not None and len(faces):
+        walls = self.profile.nlos.enabled or self.profile.multipath.enabled
+        if walls and faces is not None and len(faces):
             from virtualgps.scene import CLASS_OCCLUDER
 
             facades = _FACADES.get(id(self.scene), (None, None))[1]
@@ -228,10 +233,15 @@ class Sky:
     az_deg, el_deg : (..., n_t, n_sat) degrees, at the antenna
     los_enu : (..., n_t, n_sat, 3) unit vectors antenna -> satellite, antenna ENU frame
     above_mask : (..., n_t, n_sat) bool, elevation >= the profile's mask
-    blocked : (..., n_t, n_sat) bool, line of sight hits an occluder (False below the mask)
+    blocked : (..., n_t, n_sat) bool, line of sight hits an occluder or a blocking bin of the
+        profile's sky mask (False below the mask)
     nlos : (..., n_t, n_sat) bool, blocked but received off a facade (``nlos`` effect)
     excess_m : (..., n_t, n_sat) float, metres, the reflected path's extra length (0 if direct)
-    foliage_db : (..., n_t, n_sat) float, dB, attenuation through foliage (``foliage`` effect)
+    foliage_db : (..., n_t, n_sat) float, dB, attenuation through foliage and by the sky mask
+        (``foliage`` effect)
+    wall_dist_m : (..., n_t) float, metres, horizontal distance from the antenna to the nearest
+        wall rising above it, up to ``multipath.max_dist_m`` (inf: none that near; NaN: no
+        scene, or ``multipath`` off)
     """
 
     lat_deg: np.ndarray
@@ -245,6 +255,7 @@ class Sky:
     nlos: np.ndarray
     excess_m: np.ndarray
     foliage_db: np.ndarray
+    wall_dist_m: np.ndarray
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
@@ -289,11 +300,20 @@ def box_muller(u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dilutions of precision of the used satellites' geometry.
+    """Dilutions of precision of the used satellites' geometry, as an MTK receiver reports them.
 
     G has a row [-e, -n, -u, 1] per used satellite (unit line of sight, receiver clock);
     Q = (G^T G)^-1 in the local ENU frame; HDOP = sqrt(Qee + Qnn), VDOP = sqrt(Quu),
     PDOP = sqrt(Qee + Qnn + Quu) (Misra & Enge, Global Positioning System, section 6.1.3).
+
+    With exactly 3 used satellites (a 2D fix: the height is held) the held height counts as one
+    more measurement, a row [0, 0, 1, 0] with the weight of a range. G is then square and only
+    that row sees the height, so VDOP = 1 and PDOP^2 = HDOP^2 + 1; HDOP^2 is the 3-state (east,
+    north, clock) HDOP^2 plus the horizontal variance a unit height error causes (nothing for
+    satellites on the horizon). This is what MTK firmware prints: the 2D fixes of
+    gpsd-mtk/mtk-3301.log:72 (3 satellites, ``3.05,2.88,1.00``) and mtk-3329.log:11 (4
+    satellites, ``1.62,1.31,0.95``) come out to the printed digits from their GSV azimuths and
+    elevations; the 3-state HDOP with the height taken as exact (2.75 for mtk-3301) does not.
 
     Parameters
     ----------
@@ -302,13 +322,15 @@ def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
     Returns
     -------
-    hdop, vdop, pdop : (...) float; NaN with fewer than 4 used satellites or a singular geometry
+    hdop, vdop, pdop : (...) float; NaN with fewer than 3 used satellites or a singular geometry
     """
     w = used.astype(float)[..., None]
     los = np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num is slow on tiny arrays)
     g = np.concatenate([-los, np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
     normal = np.einsum("...si,...sj->...ij", g * w, g)
-    ok = used.sum(axis=-1) >= 4
+    n_used = used.sum(axis=-1)
+    normal[..., 2, 2] += n_used == 3  # the held height's row [0, 0, 1, 0] (2D fix)
+    ok = n_used >= 3
     safe = np.where(ok[..., None, None], normal, np.eye(4))
     try:
         q = np.linalg.inv(safe)
@@ -372,7 +394,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     rng_m = np.linalg.norm(d_ecef, axis=-1, keepdims=True)
     u_ecef = d_ecef / rng_m
     rot = geodesy.ecef_to_enu_matrix(lat, lon)  # (..., n_t, 3, 3)
-    los_enu = np.einsum("...ij,...sj->...si", rot, u_ecef)
+    los_enu = u_ecef @ np.swapaxes(rot, -1, -2)  # (matmul: einsum is 10x slower here)
     az, el, _ = geodesy.enu_to_azel(los_enu)
     with np.errstate(invalid="ignore"):
         above = el >= rx.profile.sky.elevation_mask_deg  # NaN (no ephemeris) -> False
@@ -391,9 +413,16 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
             path_m = signals.foliage_path_m(rx.scene, origins, dirs, fol.billboard_m)
             foliage_db[idx] = np.minimum(fol.db_per_m * path_m, fol.max_db)
         blocked[idx] = hit
+    mask = rx.profile.sky_mask
+    if mask.enabled:  # obstacles the scene lacks: attenuate like foliage; a bin >= block_db
+        # blocks the direct path (a reflection off a facade may still arrive: nlos)
+        mask_db = np.where(above, skymask.attenuation_db(mask, az, el, ant), 0.0)
+        walled = mask_db >= mask.block_db
+        blocked |= walled
+        foliage_db = foliage_db + np.where(walled, 0.0, mask_db)
     nlos = np.zeros_like(blocked)
     excess = np.zeros(blocked.shape)
-    if rx.facades is not None and blocked.any():
+    if rx.profile.nlos.enabled and rx.facades is not None and blocked.any():
         idx = np.nonzero(blocked)
         dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = np.broadcast_to(ant[..., None, :], blocked.shape + (3,))[idx]
@@ -401,7 +430,17 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
                                         rx.profile.nlos.max_dist_m)
         nlos[idx] = found
         excess[idx] = np.where(found, ex, 0.0)
-    return Sky(lat, lon, alt, az, el, los_enu, above, blocked, nlos, excess, foliage_db)
+    wall_dist = np.full(ant.shape[:-1], np.nan)
+    if rx.profile.multipath.enabled and rx.facades is not None:
+        flat = ant.reshape(-1, 3)
+        # Once per run of epochs at one position (a static antenna: once per batch).
+        new = np.ones(len(flat), bool)
+        new[1:] = np.any(flat[1:] != flat[:-1], axis=1)
+        first = np.flatnonzero(new)
+        dist = rx.facades.wall_dist_m(flat[first], rx.profile.multipath.max_dist_m)
+        wall_dist = dist[np.cumsum(new) - 1].reshape(ant.shape[:-1])
+    return Sky(lat, lon, alt, az, el, los_enu, above, blocked, nlos, excess, foliage_db,
+               wall_dist)
 
 
 def select_used(seen: np.ndarray, el_deg: np.ndarray, max_channels: int) -> np.ndarray:
@@ -454,8 +493,8 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
 
     Returns
     -------
-    layout : start columns ("usarsim", "white", "gm", "fade") and "total"; a model that is off
-        takes none
+    layout : start columns ("usarsim", "white", "gm", "fade", "multipath") and "total"; a
+        model that is off takes none
     """
     even = n_sat + (n_sat % 2)  # Box-Muller works in pairs
     cols = {"usarsim": 0}
@@ -470,6 +509,9 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
     if profile.cn0_tracking.enabled:
         cols["fade"] = total
         total += even
+    if profile.multipath.enabled:  # last: the other effects keep their columns
+        cols["multipath"] = total
+        total += even
     cols["total"] = total
     return cols
 
@@ -481,6 +523,7 @@ class PositionErrors:
     enu_m : (n_t, 3) metres, error of the reported position (up 0 for the paper's model)
     three_d, two_d : (n_t,) bool, a 3D / 2D solution exists (enough used satellites)
     gm_m : the Gauss-Markov state after the batch (None when the effect is off)
+    mp_m : the ``multipath`` Gauss-Markov state after the batch (None when the effect is off)
     sigma_enu_m : (n_t, 3) metres, the model's 1-sigma of each axis (what GST reports); NaN
         where the model has none
     range_rms_m : (n_t,) metres, RMS range error sigma of the used satellites (NaN: none)
@@ -490,6 +533,7 @@ class PositionErrors:
     three_d: np.ndarray
     two_d: np.ndarray
     gm_m: np.ndarray | None
+    mp_m: np.ndarray | None
     sigma_enu_m: np.ndarray
     range_rms_m: np.ndarray
 
@@ -510,7 +554,10 @@ def position_errors(
     ``dop_error``: per-satellite range errors with the UERE sigma of their elevation (white, or
     Gauss-Markov with ``correlated_error`` in the range domain plus white receiver noise),
     solved by weighted least squares over the used satellites: 3D with >= 4, 2D (height held)
-    with 3. ``correlated_error`` in the position domain adds Gauss-Markov E/N/U errors.
+    with 3; ``nlos`` adds the reflected path's excess, ``multipath`` a Gauss-Markov error on
+    each satellite received directly (its sigma from the elevation and the distance to the
+    nearest wall: :func:`virtualgps.errors.multipath_sigma_m`). ``correlated_error`` in the
+    position domain adds Gauss-Markov E/N/U errors.
 
     Parameters
     ----------
@@ -532,9 +579,12 @@ def position_errors(
     var = np.zeros((n_t, 3))  # variance of each axis under the model
     modelled = np.zeros(3, bool)  # axes the model says something about
     range_rms = np.full(n_t, np.nan)
-    gm_state = None
+    gm_state = mp_state = None
     three_d = n_used >= 4
     two_d = np.zeros(n_t, bool)
+    # The UERE sigma of each satellite (dop_error's weights; correlated_error's shape)
+    sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof)) if prof.dop_error.enabled \
+        else None
     if prof.noise.model == "usarsim":
         sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
         z_north, z_east = box_muller(u[:, 0], u[:, 1])
@@ -547,9 +597,7 @@ def position_errors(
         width = n_sat + (n_sat % 2) if ce.domain == "range" else 4
         z = errors.normals_from_uniforms(u[:, c : c + width])
         if ce.domain == "range":
-            el_shape = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof)) / errors.uere_sigma_m(
-                np.array(90.0), *_uere_args(prof)
-            )
+            el_shape = sigma_i / errors.uere_sigma_m(np.array(90.0), *_uere_args(prof))
             x0 = _gm_start(state, n_sat)
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
             gm_state = gm[-1]
@@ -562,8 +610,7 @@ def position_errors(
             enu += gm
             var += sig**2
             modelled[:] = True
-    if prof.dop_error.enabled:
-        sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof))
+    if sigma_i is not None:  # dop_error
         c = layout["white"]
         z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
         if ce.enabled and ce.domain == "range":
@@ -571,22 +618,36 @@ def position_errors(
         else:
             eps = sigma_i * z
         eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
-        e3 = errors.wls_error(sky.los_enu, used, sigma_i, eps, n_states=4)
+        mp = prof.multipath
+        if mp.enabled:
+            c = layout["multipath"]
+            z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
+            x0 = state.mp_m if state.mp_m is not None and state.mp_m.shape == (n_sat,) else \
+                np.zeros(n_sat)  # (zeros: the first epoch's infinite step draws it afresh)
+            # Unit processes, one per satellite, running whether or not it is seen; the sigma
+            # follows the elevation and the antenna's distance to the walls epoch by epoch.
+            x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z)
+            mp_state = x[-1]
+            sigma_mp = errors.multipath_sigma_m(sky.el_deg, sky.wall_dist_m, mp.sigma_m,
+                                                mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
+            # Line of sight only: a blocked satellite arrives, if at all, off a wall (nlos).
+            eps = eps + np.where(sky.blocked, 0.0, sigma_mp * x)
+        e3, sigma_enu = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4)
         three_d = three_d & np.isfinite(e3[:, 0])
         two_d = n_used == 3
         e2 = np.zeros_like(e3)
         k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
         if k.size:
-            e2[k] = errors.wls_error(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)
+            e2[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
-        var += np.square(errors.wls_sigma_enu_m(sky.los_enu, used, sigma_i))
+        var += np.square(sigma_enu)
         modelled[:] = True
         n = used.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             range_rms = np.sqrt(np.where(used, sigma_i**2, 0.0).sum(axis=1) / n)
     sigma = np.where(modelled, np.sqrt(var), np.nan)
-    return PositionErrors(enu, three_d, two_d, gm_state, sigma, range_rms)
+    return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms)
 
 
 def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
@@ -882,6 +943,7 @@ def simulate(
         n_epochs=state.n_epochs + n_t,
         last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
         gm_m=err.gm_m,
+        mp_m=err.mp_m,
         last_alt_hae_m=last_alt,
         **track_state,
         **out_state,

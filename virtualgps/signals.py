@@ -92,6 +92,8 @@ def track(
 
 
 INDEX_STEP_M = 5.0
+CELL_M = 8.0  # side of the square cells whose candidate walls are cached
+MAX_CACHED_CELLS = 100_000  # per radius (~100 walls each: tens of MB at most); then rebuilt
 
 
 class Facades:
@@ -109,6 +111,11 @@ class Facades:
     lo_m, hi_m : (n, 3) float, metres, scene ENU bounding box of each plane's triangles
     index_xy, index_owner : points every INDEX_STEP_M along the planes' footprints, and their
         plane; tree : scipy cKDTree over ``index_xy``
+    along : (n, 2) float, horizontal unit vectors along each plane (perpendicular to its normal)
+    ends_s : (n, 2) float, metres, the footprint's ends as positions along ``along``
+    footprint_xy_m : (n, 2, 2) float, metres, scene east/north of the footprint's two ends
+    index_start, index_n : (n,) int, each plane's first row in ``index_xy`` and its number of
+        index steps (``index_n + 1`` points, evenly spaced from end to end)
     """
 
     def __init__(
@@ -147,9 +154,13 @@ class Facades:
         # Index the planes by points along their footprints (a long wall is found from anywhere
         # along it); the footprint runs along the wall, perpendicular to its normal.
         along = np.stack([self.normal[:, 1], -self.normal[:, 0]], axis=1)
-        corners = np.stack([self.lo_m[:, :2], self.hi_m[:, :2]], axis=1)  # (n, 2, 2)
+        # All four corners of the bounding box: a wall running north-west to south-east spans
+        # the box between the other two.
+        lo, hi = self.lo_m[:, :2], self.hi_m[:, :2]
+        corners = np.stack([lo, hi, np.stack([lo[:, 0], hi[:, 1]], 1),
+                            np.stack([hi[:, 0], lo[:, 1]], 1)], axis=1)  # (n, 4, 2)
         s = np.einsum("ikj,ij->ik", corners, along)
-        ends_s = np.sort(s, axis=1)
+        ends_s = np.stack([s.min(axis=1), s.max(axis=1)], axis=1)
         base = self.offset_m[:, None] * self.normal[:, :2]
         n_pts = np.maximum(1, np.ceil((ends_s[:, 1] - ends_s[:, 0]) / INDEX_STEP_M)).astype(int)
         owner = np.repeat(np.arange(n_planes), n_pts + 1)
@@ -159,31 +170,134 @@ class Facades:
         self.index_xy = base[owner] + pos[:, None] * along[owner]
         self.index_owner = owner
         self.tree = cKDTree(self.index_xy) if len(owner) else None
+        self.along = along
+        self.ends_s = ends_s
+        self.footprint_xy_m = base[:, None, :] + ends_s[:, :, None] * along[:, None, :]
+        # The same as contiguous columns, for the per-pair arithmetic of wall_dist_m.
+        start, span = self.footprint_xy_m[:, 0], np.diff(self.footprint_xy_m, axis=1)[:, 0]
+        self._x0, self._y0 = start[:, 0].copy(), start[:, 1].copy()
+        self._dx, self._dy = span[:, 0].copy(), span[:, 1].copy()
+        self._inv_len2 = 1.0 / np.maximum(self._dx**2 + self._dy**2, 1e-12)
+        self._top_m = self.hi_m[:, 2].copy()
+        self.index_n = n_pts
+        self.index_start = np.cumsum(n_pts + 1) - (n_pts + 1)
+        # Candidate walls per cell of the ground (see candidates): an antenna stays in a cell
+        # for many epochs, and the daemon asks once per epoch.
+        self._cells: dict[tuple[float, float], dict[int, np.ndarray]] = {}
 
     def __len__(self) -> int:
         return len(self.normal)
 
-    def near(self, xy_m: np.ndarray, max_dist_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """Pairs (query, plane) of walls within about ``max_dist_m`` of each point.
+    def candidates(
+        self, xy_m: np.ndarray, radius_m: float, plane_dist_m: float = np.inf
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (query, plane): a superset of the planes with an index point within
+        ``radius_m`` of each point and a plane within ``plane_dist_m`` of it.
+
+        The planes near each ``CELL_M`` square are found once (index point and plane within
+        those distances plus half the cell's diagonal of its centre) and cached: a walking
+        antenna stays in a cell for several epochs, a static one for ever. Use
+        :meth:`index_dist_m` to keep the exact set.
 
         Parameters
         ----------
         xy_m : (m, 2) metres, scene east/north
-        max_dist_m : metres
+        radius_m : metres
+        plane_dist_m : metres, distance from the point to the wall's (infinite) plane
 
         Returns
         -------
-        query, plane : (k,) int, unique pairs
+        query, plane : (k,) int, no pair twice (grouped by cell)
         """
-        from scipy.spatial import cKDTree
+        m = len(xy_m)
+        if self.tree is None or m == 0:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        cell = np.floor(xy_m / CELL_M).astype(np.int64)
+        key = cell[:, 0] * (1 << 32) + cell[:, 1]  # unique while |north| < 2^31 cells
+        if (key == key[0]).all():  # one cell (the live loop's epoch): no grouping to do
+            keys, first, inverse = key[:1], np.zeros(1, np.intp), np.zeros(m, np.intp)
+        else:
+            keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        cache = self._cells.setdefault((float(radius_m), float(plane_dist_m)), {})
+        key_list = keys.tolist()
+        missing = [i for i, k in enumerate(key_list) if k not in cache]
+        if missing:
+            if len(cache) + len(missing) > MAX_CACHED_CELLS:
+                cache.clear()
+                missing = list(range(len(key_list)))
+            centres = (cell[first[missing]] + 0.5) * CELL_M
+            half_diag = CELL_M * np.sqrt(0.5) + 1e-6  # from the centre to any point of the cell
+            near = self.tree.query_ball_point(centres, radius_m + half_diag)
+            for i, c, pts in zip(missing, centres, near, strict=True):
+                planes = np.unique(self.index_owner[np.asarray(pts, np.intp)])
+                off = np.abs(self.normal[planes, :2] @ c - self.offset_m[planes])
+                cache[key_list[i]] = planes[off <= plane_dist_m + half_diag]
+        if len(key_list) == 1:
+            planes = cache[key_list[0]]
+            return np.repeat(np.arange(m), planes.size), np.tile(planes, m)
+        # Cell by cell: every query of a cell pairs with every plane of its list.
+        order = np.argsort(inverse, kind="stable")
+        groups = np.split(order, np.cumsum(np.bincount(inverse))[:-1])
+        query = [np.repeat(g, cache[k].size) for k, g in zip(key_list, groups, strict=True)]
+        plane = [np.tile(cache[k], g.size) for k, g in zip(key_list, groups, strict=True)]
+        return np.concatenate(query), np.concatenate(plane)
 
-        if self.tree is None or len(xy_m) == 0:
-            return np.zeros(0, int), np.zeros(0, int)
-        pairs = cKDTree(xy_m).sparse_distance_matrix(
-            self.tree, max_dist_m + INDEX_STEP_M, output_type="ndarray"
-        )
-        key = np.unique(pairs["i"].astype(np.int64) * len(self) + self.index_owner[pairs["j"]])
-        return key // len(self), key % len(self)
+    def index_dist_m(self, xy_m: np.ndarray, plane: np.ndarray) -> np.ndarray:
+        """Distance from each point to the nearest index point of its plane (closed form).
+
+        The index points of a plane are evenly spaced on a line, so the nearest one is the one
+        whose position along the line is nearest to the point's projection.
+
+        Parameters
+        ----------
+        xy_m : (k, 2) metres, scene east/north
+        plane : (k,) int
+
+        Returns
+        -------
+        dist_m : (k,) float, metres
+        """
+        s = np.einsum("ij,ij->i", xy_m, self.along[plane])
+        e0, e1 = self.ends_s[plane, 0], self.ends_s[plane, 1]
+        span = e1 - e0
+        frac = np.clip((s - e0) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+        k = np.rint(frac * self.index_n[plane]).astype(np.intp)
+        diff = xy_m - self.index_xy[self.index_start[plane] + k]
+        return np.sqrt(np.einsum("ij,ij->i", diff, diff))
+
+    def wall_dist_m(self, antenna_enu_m: np.ndarray, max_dist_m: float) -> np.ndarray:
+        """Horizontal distance from each antenna to the nearest wall whose top is above it.
+
+        The distance to a wall is to its footprint, the segment its triangles cover along its
+        plane; walls lower than the antenna are left out, as in :func:`reflections`.
+
+        Parameters
+        ----------
+        antenna_enu_m : (m, 3) metres, scene ENU
+        max_dist_m : walls further than this are not searched for
+
+        Returns
+        -------
+        dist_m : (m,) float, metres; inf where no wall is within ``max_dist_m``
+        """
+        m = len(antenna_enu_m)
+        # A footprint within max_dist_m has an index point within max_dist_m + half a step
+        # (the distances of reflections' search: one cache serves both when they agree).
+        q, j = self.candidates(antenna_enu_m[:, :2], max_dist_m + INDEX_STEP_M,
+                               max_dist_m + 1e-3)
+        k = np.flatnonzero(self._top_m[j] > antenna_enu_m[q, 2])
+        q, j = q[k], j[k]
+        # Nearest point of each footprint segment: its start + t (end - start), t in [0, 1].
+        px = antenna_enu_m[q, 0] - self._x0[j]
+        py = antenna_enu_m[q, 1] - self._y0[j]
+        dx, dy = self._dx[j], self._dy[j]
+        t = np.clip((px * dx + py * dy) * self._inv_len2[j], 0.0, 1.0)
+        px -= t * dx
+        py -= t * dy
+        dist2 = np.full(m, np.inf)
+        np.minimum.at(dist2, q, px * px + py * py)
+        dist = np.sqrt(dist2)
+        return np.where(dist <= max_dist_m, dist, np.inf)
 
 
 def reflections(
@@ -222,45 +336,57 @@ def reflections(
     excess = np.full(m, np.nan)
     if m == 0 or len(facades) == 0:
         return found, excess
-    # Spatial query once per distinct antenna position (many satellites share one).
-    xy, inverse = np.unique(np.round(antenna_enu_m[:, :2], 3), axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    qa, j_a = facades.near(xy, max_dist_m)
-    # A satellite above the horizon reflects off a wall above the antenna: drop walls whose top
-    # is below the lowest antenna at that position.
-    z_min = np.full(len(xy), np.inf)
-    np.minimum.at(z_min, inverse, antenna_enu_m[:, 2])
-    keep = facades.hi_m[j_a, 2] > z_min[qa]
-    qa, j_a = qa[keep], j_a[keep]
-    if qa.size == 0:
-        return found, excess
-    # Expand (antenna, plane) pairs to (query, plane) pairs.
-    order = np.argsort(inverse, kind="stable")
-    starts = np.searchsorted(inverse[order], np.arange(len(xy)))
-    counts = np.bincount(inverse, minlength=len(xy))
-    rep = counts[qa]
-    q = order[np.repeat(starts[qa], rep) + _ranges(rep)]
-    j = np.repeat(j_a, rep)
-    a, u = antenna_enu_m[q], sat_dir_enu[q]
-    n = facades.normal[j]
-    d = np.einsum("ij,ij->i", a, n) - facades.offset_m[j]
-    n = n * np.sign(d)[:, None]  # face the antenna
+    # Queries come epoch by epoch: a run of queries from one antenna position shares the wall
+    # search and the antenna-to-wall geometry.
+    new_run = np.ones(m, bool)
+    new_run[1:] = np.any(antenna_enu_m[1:] != antenna_enu_m[:-1], axis=1)
+    starts = np.flatnonzero(new_run)
+    counts = np.diff(np.append(starts, m))
+    ant = antenna_enu_m[starts]
+    xy = np.round(ant[:, :2], 3)  # the candidate rule's position (to the millimetre)
+    reach_m = max_dist_m + INDEX_STEP_M  # walls with an index point this close are candidates
+    ga, j_a = facades.candidates(xy, reach_m, max_dist_m + 1e-3)  # (xy is within 1 mm of ant)
+    # Distance to each wall plane, its normal turned to face the antenna (the normals are
+    # horizontal: east and north terms only). A satellite above the horizon reflects off a
+    # wall above the antenna.
+    nx, ny, off = facades.normal[j_a, 0], facades.normal[j_a, 1], facades.offset_m[j_a]
+    d = ant[ga, 0] * nx + ant[ga, 1] * ny - off
+    side = np.sign(d)
     d = np.abs(d)
-    un = np.einsum("ij,ij->i", u, n)
-    ok = (un > 1e-6) & (d > 0.05) & (d <= max_dist_m)
+    keep = np.flatnonzero((facades.hi_m[j_a, 2] > ant[ga, 2]) & (d > 0.05) & (d <= max_dist_m))
+    ga, j_a, d = ga[keep], j_a[keep], d[keep]
+    nx, ny = nx[keep] * side[keep], ny[keep] * side[keep]
+    # Expand (antenna, wall) pairs to (query, wall) pairs; keep satellites on the wall's side.
+    rep = counts[ga]
+    pair = np.repeat(np.arange(ga.size), rep)
+    q = np.repeat(starts[ga], rep) + _ranges(rep)
+    ux, uy, uz = (np.ascontiguousarray(sat_dir_enu[:, i]) for i in range(3))
+    un = ux[q] * nx[pair] + uy[q] * ny[pair]
+    k = np.flatnonzero(un > 1e-6)
+    q, pair, un = q[k], pair[k], un[k]
+    # The reflection point P = a + r t, r = u - 2 (u . n) n, must lie in the wall's bounding box
+    # (up first: it rules out most pairs).
+    g, j, d, nx, ny = ga[pair], j_a[pair], d[pair], nx[pair], ny[pair]
     t = d / np.maximum(un, 1e-12)
-    r = u - 2.0 * un[:, None] * n
-    p = a + r * t[:, None]
     slack = 0.05
-    ok &= np.all((p >= facades.lo_m[j] - slack) & (p <= facades.hi_m[j] + slack), axis=1)
+    pz = ant[g, 2] + uz[q] * t  # (r's up component is u's)
+    k = np.flatnonzero((pz >= facades.lo_m[j, 2] - slack) & (pz <= facades.hi_m[j, 2] + slack))
+    q, g, j, d, nx, ny, un, t, pz = q[k], g[k], j[k], d[k], nx[k], ny[k], un[k], t[k], pz[k]
+    rx, ry = ux[q] - 2.0 * un * nx, uy[q] - 2.0 * un * ny
+    px, py = ant[g, 0] + rx * t, ant[g, 1] + ry * t
+    lo, hi = facades.lo_m[j] - slack, facades.hi_m[j] + slack
+    ok = (px >= lo[:, 0]) & (px <= hi[:, 0]) & (py >= lo[:, 1]) & (py <= hi[:, 1])
     idx = np.flatnonzero(ok)
+    idx = idx[facades.index_dist_m(xy[g[idx]], j[idx]) <= reach_m]
     if idx.size == 0:
         return found, excess
+    r = np.stack([rx[idx], ry[idx], uz[q[idx]]], axis=1)
     # Leg 1: the first occluder along r is this wall (nothing in between, and the wall is there).
-    hit = scene.hit_distance_m(a[idx], r[idx])
+    hit = scene.hit_distance_m(ant[g[idx]], r)
     idx = idx[np.abs(hit - t[idx]) < 0.02 + 1e-4 * t[idx]]
     # Leg 2: open sky from the reflection point (nudged off the wall) to the satellite.
-    idx = idx[~scene.blocked(p[idx] + 0.05 * n[idx], u[idx])]
+    p_off = np.stack([px[idx] + 0.05 * nx[idx], py[idx] + 0.05 * ny[idx], pz[idx]], axis=1)
+    idx = idx[~scene.blocked(p_off, sat_dir_enu[q[idx]])]
     ex = 2.0 * d[idx] * un[idx]
     order = np.lexsort((ex, q[idx]))  # shortest path per query first
     idx, ex = idx[order], ex[order]
