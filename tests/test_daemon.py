@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import threading
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ import pytest
 from virtualgps import daemon, nmea
 from virtualgps.config import BUNDLED_SCENES_DIR, make_receiver, resolve
 from virtualgps.ephemeris import load_tle
+from virtualgps.profiles import load_profile
 from virtualgps.receiver import Georef
 from virtualgps.scene import load_scene
 
@@ -51,6 +53,11 @@ class Sink:
 @pytest.fixture(scope="module")
 def receiver():
     cfg = resolve({"rate": 10.0, "scene": "none"})
+    # The loop's pose rules are under test: a receiver with a fix as soon as a pose is there
+    # (no start-up, no acquisition delay).
+    quick = {"cold_start": {"enabled": False}, "cn0_tracking": {"enabled": False}}
+    prof = load_profile(cfg.profile.name, quick, flag_overrides={"rate_hz": 10.0})
+    cfg = replace(cfg, profile=prof)
     eph = load_tle(BUNDLED_SCENES_DIR.parent / "ephemeris" / "gps-ops-2017-03-28.tle")
     return cfg, make_receiver(cfg, None, Georef(52.14, 11.64, 100.0), eph, START)
 

@@ -193,8 +193,8 @@ def test_gpsd_reads_our_fix_and_satellites(tmp_path, magdeburg_antenna):
     assert not daemon.link.exists(), "SIGTERM must remove the link"
     assert len(tpvs) >= 5, f"gpsd reported no 3D fix; daemon stderr: {err}"
 
-    # Our position within the profile's noise: holux-m1000's maxNoise is 3 m, a 3-sigma bound
-    # per axis; radially 2x that is > 5 sigma.
+    # Our position within the profile's error: holux-m1000's R95 is ~10 m in the open (the
+    # calibration table in the README); 30 m also allows a reflected satellite's bias here.
     from virtualgps import geodesy
 
     g = scene
@@ -203,7 +203,7 @@ def test_gpsd_reads_our_fix_and_satellites(tmp_path, magdeburg_antenna):
         enu = geodesy.ecef_to_enu(
             geodesy.geodetic_to_ecef(tpv["lat"], tpv["lon"], truth[2]), *truth
         )
-        assert np.hypot(enu[0], enu[1]) < 6.0, tpv
+        assert np.hypot(enu[0], enu[1]) < 30.0, tpv
 
     # The same satellites as our GSV: gpsd's SKY lists what GSV listed; compare with our sky.
     from virtualgps import config

@@ -259,7 +259,11 @@ def mtk_receiver():
         {
             "command_link": "mtk",
             "rate_hz": 10.0,
-            "cold_start": {"ttff_cold_s": 1.0, "ttff_warm_s": 0.5, "ttff_sd_frac": 0.0},
+            # a fix from the first epoch (no power-on start, no acquisition delay): the
+            # restarts the client commands are what is under test
+            "cold_start": {"power_on": "none", "ttff_cold_s": 1.0, "ttff_warm_s": 0.5,
+                           "ttff_sd_frac": 0.0},
+            "cn0_tracking": {"enabled": False},
         },
     )
     cfg = dataclasses.replace(cfg, profile=prof)

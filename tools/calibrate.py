@@ -1,0 +1,199 @@
+"""Check a receiver profile against the real MTK logs: the calibration table, real vs simulated.
+
+Usage::
+
+    python tools/calibrate.py [--profile holux-m1000] [--config extra.toml] [--seeds 8]
+                              [--data ../shared/data] [--readme README.md] [--plot cal.png]
+
+The real column comes from :func:`virtualgps.reallogs.real_calibration_stats` (also printed by
+tools/real_stats.py), the simulated one from :func:`virtualgps.calibration.sim_calibration_stats`:
+the profile replayed where and when each log was recorded, its NMEA read back and summarised
+exactly like the real log's (see virtualgps/calibration.py). The simulated value is the median
+over the seeds, with the seeds' range beside it. ``--readme`` rewrites the table between the
+``<!-- calibration:start -->`` and ``<!-- calibration:end -->`` lines of that file; ``--plot``
+draws the distributions behind the numbers (seed 0 against the real logs). The exit status is
+1 when a calibrated statistic lies outside its tolerance.
+
+To fit a changed model, edit the profile's parameters (or pass ``--config`` with overrides) and
+rerun; the whole run takes a few seconds per seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps.calibration import (
+    CALIBRATION_TLE,
+    DEFAULT_SEEDS,
+    Row,
+    compare,
+    m241_setup,
+    mt3339_setup,
+    replay_epochs,
+    sim_calibration_stats,
+)
+from virtualgps.ephemeris import load_tle
+from virtualgps.metrics import (
+    autocorrelation,
+    errors_enu_m,
+    horizontal_error_m,
+    median_position,
+    to_regular_grid,
+)
+from virtualgps.nmea import read_nmea_epochs
+from virtualgps.profiles import load_profile
+from virtualgps.reallogs import (
+    M241_MOVING_MIN_SPEED_MPS,
+    M241_TRACK_CSV,
+    MT3339_STATIC_LOG,
+    read_mtk_logger_csv,
+    real_calibration_stats,
+)
+
+DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+START, END = "<!-- calibration:start -->", "<!-- calibration:end -->"
+LOG_NAMES = {"mt3339_static": "MT3339 static hour", "m241_moving": "M-241 car track, moving"}
+
+
+def _num(x: float) -> str:
+    if not np.isfinite(x):
+        return "-"
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.2f}" if abs(x) < 10 else f"{x:.1f}"
+
+
+def markdown(rows: list[Row], n_seeds: int, command: str) -> str:
+    """The calibration table as Markdown, with the command that made it."""
+    out = [
+        f"| log | statistic | real | simulated (median of {n_seeds} seeds) | seeds' range "
+        "| sim / real | within |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        tol = r.stat.tolerance
+        verdict = "(not calibrated)" if tol is None else (
+            f"{'yes' if r.ok else 'NO'} (+-{tol:.0%})")
+        out.append(
+            f"| {LOG_NAMES[r.stat.log]} | {r.stat.label} | {_num(r.real)} | {_num(r.sim_median)} "
+            f"| {_num(r.sim_min)}-{_num(r.sim_max)} | {r.ratio:.2f} | {verdict} |"
+        )
+    out.append("")
+    out.append(f"Made by `{command}`.")
+    return "\n".join(out)
+
+
+def rewrite_readme(path: Path, table: str) -> None:
+    """Put ``table`` between the calibration markers of ``path`` (which must hold them)."""
+    text = path.read_text()
+    pattern = re.compile(re.escape(START) + r".*?" + re.escape(END), re.S)
+    if not pattern.search(text):
+        raise SystemExit(f"{path}: no {START} ... {END} block to rewrite")
+    path.write_text(pattern.sub(lambda _: f"{START}\n{table}\n{END}", text))
+
+
+def _errors_h_m(ep) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal errors about the median fix (m) and the ENU errors on the 1 s grid."""
+    fixed = (ep.quality > 0) & np.isfinite(ep.lat_deg)
+    alt = ep.alt_msl_m + np.nan_to_num(ep.geoid_sep_m)
+    ref = median_position(ep.lat_deg[fixed], ep.lon_deg[fixed], alt[fixed])
+    enu = errors_enu_m(ep.lat_deg[fixed], ep.lon_deg[fixed], alt[fixed], *ref)
+    _, grid = to_regular_grid(ep.t_unix_s[fixed], enu, 1.0)
+    return horizontal_error_m(enu), grid
+
+
+def plot(profile, data: Path, path: Path) -> None:
+    """Four panels, real vs simulated (seed 0): horizontal error CDF, error autocorrelation,
+    C/N0 histogram (MT3339) and HDOP CDF (both logs)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eph = load_tle(data / CALIBRATION_TLE)
+    real = read_nmea_epochs(data / MT3339_STATIC_LOG)
+    georef, track = mt3339_setup(data)
+    sim = replay_epochs(profile, eph, georef, track, 0)
+    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
+    for ep, name, style in ((real, "MT3339 (real)", "k-"), (sim, "simulated", "C1-")):
+        err_h, grid = _errors_h_m(ep)
+        x = np.sort(err_h)
+        ax[0, 0].plot(x, np.linspace(0, 1, x.size), style, label=name)
+        lags = np.arange(601)
+        ax[0, 1].plot(lags, autocorrelation(grid[:, :2], 600), style, label=name)
+        cn0 = ep.cn0_dbhz[(ep.quality > 0)].ravel()
+        ax[1, 0].hist(cn0[np.isfinite(cn0)], bins=np.arange(5, 50), density=True,
+                      histtype="step", color=style[:-1], label=name)
+        h = np.sort(ep.hdop[(ep.quality > 0) & np.isfinite(ep.hdop)])
+        ax[1, 1].plot(h, np.linspace(0, 1, h.size), style, label=f"{name}, static")
+    georef, trk, speed = m241_setup(data)
+    shift = 86400.0 * round((eph.epoch_center_unix_s - trk.t_unix_s[0]) / 86400.0)
+    sim = replay_epochs(profile, eph, georef, replace(trk, t_unix_s=trk.t_unix_s + shift), 0)
+    real_m = read_mtk_logger_csv(data / M241_TRACK_CSV)
+    for h, name, style in (
+        (real_m.hdop[real_m.speed_mps >= M241_MOVING_MIN_SPEED_MPS], "M-241 (real)", "k--"),
+        (sim.hdop, "simulated", "C1--"),
+    ):
+        h = np.sort(h[np.isfinite(h)])
+        ax[1, 1].plot(h, np.linspace(0, 1, h.size), style, label=f"{name}, moving")
+    ax[0, 0].set(xlabel="horizontal error about the median fix (m)", ylabel="CDF", xlim=(0, 20))
+    ax[0, 1].axhline(np.exp(-1), color="0.6", lw=0.8)
+    ax[0, 1].set(xlabel="lag (s)", ylabel="autocorrelation of the E/N error")
+    ax[1, 0].set(xlabel="GSV SNR, C/N0 (dB-Hz)", ylabel="density")
+    ax[1, 1].set(xlabel="HDOP", ylabel="CDF", xlim=(0.5, 3))
+    for a in ax.ravel():
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(f"{profile.name}: real MTK logs vs simulated")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--profile", default="holux-m1000", help="profile name or TOML path")
+    ap.add_argument("--config", help="a TOML file of profile overrides")
+    ap.add_argument("--seeds", type=int, default=len(DEFAULT_SEEDS), help="number of seeds")
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="the ../shared/data folder")
+    ap.add_argument("--readme", type=Path, help="rewrite the calibration table in this file")
+    ap.add_argument("--plot", type=Path, help="draw the distributions into this PNG")
+    args = ap.parse_args(argv)
+    if not (args.data / MT3339_STATIC_LOG).exists():
+        print(f"calibrate: no real logs under {args.data} (give --data)", file=sys.stderr)
+        return 2
+    profile = load_profile(args.profile, overrides_path=args.config)
+    t0 = time.monotonic()
+    real = real_calibration_stats(args.data)
+    sim = sim_calibration_stats(
+        profile, args.data, range(args.seeds),
+        progress=lambda what: print(f"  {what} ({time.monotonic() - t0:.1f} s)", file=sys.stderr),
+    )
+    rows = compare(real, sim)
+    command = "python tools/calibrate.py" + "".join(
+        f" --{k} {v}" for k, v in (("profile", args.profile), ("config", args.config))
+        if v and v != "holux-m1000"
+    ) + (f" --seeds {args.seeds}" if args.seeds != len(DEFAULT_SEEDS) else "")
+    table = markdown(rows, args.seeds, command)
+    print(table)
+    if args.readme:
+        rewrite_readme(args.readme, table)
+        print(f"wrote the table into {args.readme}", file=sys.stderr)
+    if args.plot:
+        plot(profile, args.data, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    bad = [r for r in rows if r.ok is False]
+    for r in bad:
+        print(f"calibrate: {LOG_NAMES[r.stat.log]}: {r.stat.label}: simulated {r.sim_median:.3g} "
+              f"vs real {r.real:.3g} ({r.ratio:.2f}x) is outside +-{r.stat.tolerance:.0%}",
+              file=sys.stderr)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

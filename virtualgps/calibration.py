@@ -1,0 +1,401 @@
+"""Simulated counterparts of the real MTK logs, for calibrating a receiver profile.
+
+The simulated column of the ``holux-m1000`` calibration table is made exactly like the real one:
+the receiver is replayed where and when the real log was recorded (the same core and NMEA
+writer as ``virtualgps replay``), its NMEA is read back with the reader the real log goes
+through, and :func:`virtualgps.metrics.summary` computes the same statistics. Integer SNR, the
+4-decimal minutes of the position and the 2-decimal HDOP are then rounded alike on both sides.
+
+- MT3339 static hour: the antenna stands at the log's median position from the log's first
+  epoch to its last; the satellites come from the 2017-03-26 CelesTrak set (15 days after the
+  log; it reproduces the log's GSV angles to about 0.4 deg, SOURCES.md), propagated straight to
+  the log's time (no sky shift: SGP4 is better than a shift for at least 50 days,
+  :func:`virtualgps.ephemeris.sidereal_shift_s`). No scene: the log holds no map.
+- M-241 car track (2008): the antenna follows the logged positions (their own error, a few
+  metres, is irrelevant to satellite counts and HDOP). No TLE of 2008 is at hand, so the track
+  is replayed at the same UTC time of day on several days around that set's epoch
+  (``M241_START_DAYS``): the satellite counts and HDOP of a moving receiver at that latitude,
+  not of that afternoon's sky.
+
+A one-hour record of an error correlated over ~150 s holds only ~12 independent samples, so
+its statistics scatter from seed to seed by 10-20 %. The simulated value of each statistic is
+the median over several seeds, and the seed-to-seed spread is reported beside it.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps import geodesy, nmea, pose
+from virtualgps.ephemeris import Constellation, load_tle
+from virtualgps.geodesy import geoid_sep_m
+from virtualgps.metrics import median_position, summary
+from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
+from virtualgps.profiles import Profile
+from virtualgps.reallogs import (
+    M241_MOVING_MIN_SPEED_MPS,
+    M241_TRACK_CSV,
+    MT3339_STATIC_LOG,
+    read_mtk_logger_csv,
+)
+from virtualgps.receiver import Georef, Receiver, compute_sky
+from virtualgps.replay import epoch_grid, run_replay, track_in_scene
+
+# The TLE set nearest the MT3339 hour (2017-03-11) among ../shared/data (SOURCES.md).
+CALIBRATION_TLE = "magdeburg-campus/tle/gps-ops.2017-03-26.tle.txt"
+DEFAULT_SEEDS = tuple(range(8))
+M241_START_DAYS = (-3, -2, -1, 0, 1, 2, 3)  # days from the TLE set's epoch, same time of day
+
+
+@dataclass(frozen=True)
+class Statistic:
+    """One row of the calibration table.
+
+    key : the :func:`virtualgps.metrics.summary` key
+    log : "mt3339_static" or "m241_moving"
+    label : what the README calls it
+    tolerance : allowed |sim / real - 1| (the issue's +-20 %); None: shown, not calibrated
+    """
+
+    key: str
+    log: str
+    label: str
+    tolerance: float | None = 0.20
+
+
+# The statistics the profile is calibrated to reproduce (issue #3: CEP50, R95, the error
+# autocorrelation time, satellites used and in view, the HDOP and C/N0 distributions).
+STATISTICS = (
+    Statistic("cep50_m", "mt3339_static", "CEP50 (m)"),
+    Statistic("r95_m", "mt3339_static", "R95 (m)"),
+    Statistic("autocorr_h_s", "mt3339_static", "error autocorrelation 1/e, horizontal (s)"),
+    Statistic("sats_used_mean", "mt3339_static", "satellites used, mean"),
+    Statistic("sats_in_view_gps_mean", "mt3339_static", "GPS satellites in view, mean"),
+    Statistic("hdop_p25", "mt3339_static", "HDOP 25 %"),
+    Statistic("hdop_median", "mt3339_static", "HDOP median"),
+    Statistic("hdop_p75", "mt3339_static", "HDOP 75 %"),
+    Statistic("cn0_p25_dbhz", "mt3339_static", "C/N0 25 % (dB-Hz)"),
+    Statistic("cn0_median_dbhz", "mt3339_static", "C/N0 median (dB-Hz)"),
+    Statistic("cn0_p75_dbhz", "mt3339_static", "C/N0 75 % (dB-Hz)"),
+    Statistic("sats_used_mean", "m241_moving", "satellites used, mean"),
+    Statistic("sats_in_view_mean", "m241_moving", "satellites in view, mean"),
+    Statistic("hdop_median", "m241_moving", "HDOP median"),
+    Statistic("hdop_p75", "m241_moving", "HDOP 75 %"),
+    # Shown for what they say about the model's limits, not calibrated: one hour of a
+    # correlated error fixes the axes' ratio only loosely, and MTK smooths its height (the
+    # simulated vertical error follows VDOP); the used set changes more often in reality.
+    Statistic("sigma_e_m", "mt3339_static", "1-sigma east (m)", None),
+    Statistic("sigma_n_m", "mt3339_static", "1-sigma north (m)", None),
+    Statistic("sigma_u_m", "mt3339_static", "1-sigma up (m)", None),
+    Statistic("sats_used_changes_per_min", "mt3339_static", "used-set changes per minute", None),
+    Statistic("sats_used_changes_per_min", "m241_moving", "used-set changes per minute", None),
+)
+
+
+def replay_epochs(
+    profile: Profile,
+    ephemeris: Constellation,
+    georef: Georef,
+    track: pose.PoseTrack,
+    seed: int,
+) -> NmeaEpochs:
+    """Replay poses through the receiver and read its NMEA back as a real log is read.
+
+    Parameters
+    ----------
+    profile : the receiver profile
+    ephemeris : the satellites
+    georef : the scene origin the poses are relative to
+    track : the antenna's poses (ENU of ``georef``, or geodetic)
+    seed : random seed
+
+    Returns
+    -------
+    epochs : :class:`virtualgps.nmea.NmeaEpochs` of the simulated receiver's output
+    """
+    rx = Receiver(profile=profile, ephemeris=ephemeris, scene=None, georef=georef)
+    return replay_epochs_in(rx, track_in_scene(track, georef), seed)
+
+
+def replay_epochs_in(rx: Receiver, track: pose.PoseTrack, seed: int) -> NmeaEpochs:
+    """:func:`replay_epochs` with a prepared receiver (e.g. one in a scene).
+
+    Parameters
+    ----------
+    rx : the receiver
+    track : the antenna's poses, ENU of the receiver's georeference
+    seed : random seed
+
+    Returns
+    -------
+    epochs : :class:`virtualgps.nmea.NmeaEpochs` of the simulated receiver's output
+    """
+    grid = epoch_grid(track.t_unix_s, rx.profile.rate_hz, None)
+    out = io.BytesIO()
+    run_replay(rx, track, grid, nmea.NmeaFormat.from_dict(rx.profile.nmea), out, seed)
+    return nmea_epochs_from_lines(out.getvalue().decode("ascii").splitlines(), "<simulated>")
+
+
+def mt3339_setup(root: Path) -> tuple[Georef, pose.PoseTrack]:
+    """Where the MT3339 stood (its median fix), standing there over its log's span."""
+    real = read_nmea_epochs(root / MT3339_STATIC_LOG)
+    fixed = (real.quality > 0) & np.isfinite(real.lat_deg) & np.isfinite(real.alt_msl_m)
+    lat, lon = real.lat_deg[fixed], real.lon_deg[fixed]
+    sep = real.geoid_sep_m[fixed]
+    alt_hae = real.alt_msl_m[fixed] + np.where(np.isfinite(sep), sep, geoid_sep_m(lat, lon))
+    lat, lon, alt = median_position(lat, lon, alt_hae)
+    t = np.arange(np.floor(real.t_unix_s[0]), np.ceil(real.t_unix_s[-1]) + 1.0)
+    track = pose.PoseTrack(t, "enu", np.zeros((t.size, 3)), np.full((t.size, 3), np.nan))
+    return Georef(float(lat), float(lon), float(alt)), track
+
+
+def m241_setup(root: Path) -> tuple[Georef, pose.PoseTrack, np.ndarray]:
+    """The M-241 track as geodetic poses, its first point as origin, and its speeds (m/s)."""
+    trk = read_mtk_logger_csv(root / M241_TRACK_CSV)
+    # The logger writes a record per reason (time, speed, distance): some share a second.
+    first = np.concatenate([[True], np.diff(trk.t_unix_s) > 0])
+    ok = first & np.isfinite(trk.lat_deg) & np.isfinite(trk.alt_hae_m)
+    xyz = np.stack([trk.lat_deg[ok], trk.lon_deg[ok], trk.alt_hae_m[ok]], axis=-1)
+    track = pose.PoseTrack(trk.t_unix_s[ok], "geodetic", xyz, np.full(xyz.shape, np.nan))
+    return Georef(*(float(v) for v in xyz[0])), track, trk.speed_mps[ok]
+
+
+def sim_calibration_stats(
+    profile: Profile,
+    shared_data_dir: str | Path,
+    seeds: Sequence[int] = DEFAULT_SEEDS,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, dict[str, list[float]]]:
+    """The simulated column of the calibration table: statistics of each seed's run.
+
+    Parameters
+    ----------
+    profile : the receiver profile to check (e.g. ``load_profile("holux-m1000")``)
+    shared_data_dir : the ``../shared/data`` folder (logs and the TLE set)
+    seeds : one MT3339 hour and one M-241 replay per seed (the M-241 on the day
+        ``M241_START_DAYS[i % len]`` from the TLE's epoch)
+    progress : called with a short text after each run
+
+    Returns
+    -------
+    stats : {"mt3339_static" | "m241_moving": {summary key: [value per seed]}}
+    """
+    root = Path(shared_data_dir)
+    ephemeris = load_tle(root / CALIBRATION_TLE)
+    out: dict[str, dict[str, list[float]]] = {"mt3339_static": {}, "m241_moving": {}}
+
+    georef, track = mt3339_setup(root)
+    for seed in seeds:
+        s = summary(replay_epochs(profile, ephemeris, georef, track, seed), "median")
+        for k, v in s.items():
+            out["mt3339_static"].setdefault(k, []).append(v)
+        if progress is not None:
+            progress(f"MT3339 hour, seed {seed}")
+
+    georef, track, speed = m241_setup(root)
+    t = track.t_unix_s
+    # Whole days from the log's day to the TLE set's day keep the UTC time of day.
+    day_shift_s = 86400.0 * round((ephemeris.epoch_center_unix_s - t[0]) / 86400.0)
+    for i, seed in enumerate(seeds):
+        shift = day_shift_s + 86400.0 * M241_START_DAYS[i % len(M241_START_DAYS)]
+        shifted = replace(track, t_unix_s=t + shift)
+        ep = replay_epochs(profile, ephemeris, georef, shifted, seed)
+        # The real statistic is over the records logged while moving: the same epochs here.
+        moving_t = t[speed >= M241_MOVING_MIN_SPEED_MPS] + shift
+        keep = np.isin(np.round(ep.t_unix_s), np.round(moving_t))
+        s = summary(_take(ep, keep), reference=None)
+        for k, v in s.items():
+            out["m241_moving"].setdefault(k, []).append(v)
+        if progress is not None:
+            progress(f"M-241 track, seed {seed}")
+    return out
+
+
+def _take(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
+    """The epochs where ``keep`` holds (every per-epoch array cut alike)."""
+    n = len(epochs)
+    cut = {
+        f.name: getattr(epochs, f.name)[keep]
+        for f in fields(epochs)
+        if isinstance(getattr(epochs, f.name), np.ndarray)
+        and getattr(epochs, f.name).shape[:1] == (n,)
+    }
+    return replace(epochs, **cut)
+
+
+@dataclass(frozen=True)
+class Row:
+    """One compared statistic: the real value, the simulated median and spread over seeds."""
+
+    stat: Statistic
+    real: float
+    sim_median: float
+    sim_min: float
+    sim_max: float
+
+    @property
+    def ratio(self) -> float:
+        """sim / real."""
+        return self.sim_median / self.real
+
+    @property
+    def ok(self) -> bool | None:
+        """Within the tolerance (None for a statistic that is not calibrated)."""
+        if self.stat.tolerance is None:
+            return None
+        return bool(abs(self.ratio - 1.0) <= self.stat.tolerance)
+
+
+def compare(
+    real: dict[str, dict[str, float]], sim: dict[str, dict[str, list[float]]]
+) -> list[Row]:
+    """Real vs simulated for every statistic of :data:`STATISTICS`.
+
+    Parameters
+    ----------
+    real : from :func:`virtualgps.reallogs.real_calibration_stats`
+    sim : from :func:`sim_calibration_stats`
+
+    Returns
+    -------
+    rows : one per statistic, in :data:`STATISTICS` order
+    """
+    rows = []
+    for st in STATISTICS:
+        v = np.asarray(sim[st.log][st.key], dtype=float)
+        rows.append(Row(st, float(real[st.log][st.key]), float(np.median(v)),
+                        float(np.min(v)), float(np.max(v))))
+    return rows
+
+
+# --- Magdeburg waypoints: blocked satellites, real phone vs simulated receiver ---------------
+
+MAGDEBURG_TLE = "magdeburg-campus/tle/gps-ops.2017-03-28.tle.txt"
+WAYPOINT_LOGS = "magdeburg-campus/nmea/Wegpunkte"
+WAYPOINT_MARKERS = slice(4, 18)  # markers 5-18 of staticmap.txt: the logs in time order
+ANTENNA_HEIGHT_M = 1.5  # a phone held in the hand (SOURCES.md)
+
+
+@dataclass(frozen=True)
+class WaypointSky:
+    """Satellite-epochs at the Magdeburg waypoints above the elevation mask, real and simulated.
+
+    Each array is (n,) over the satellite-epochs of GPS PRNs with a line of sight above the
+    mask at the 14 waypoint logs (geometry from SGP4 with that day's TLEs and the campus mesh,
+    the antenna 1.5 m above the ground at the marker).
+
+    log : index of the log (0-13, time order); prn : PRN; el_deg : elevation, degrees
+    crosses_building : the direct path hits an occluder of the mesh
+    real_cn0_dbhz, sim_cn0_dbhz : GSV SNR of the phone / the simulated receiver, NaN where the
+        satellite was not tracked
+    """
+
+    log: np.ndarray
+    prn: np.ndarray
+    el_deg: np.ndarray
+    crosses_building: np.ndarray
+    real_cn0_dbhz: np.ndarray
+    sim_cn0_dbhz: np.ndarray
+
+
+def waypoint_markers(root: Path) -> np.ndarray:
+    """(18, 2) latitude, longitude (degrees) of the markers in ``staticmap.txt``."""
+    url = (root / WAYPOINT_LOGS / "staticmap.txt").read_text()
+    pairs = re.findall(r"(-?\d+\.\d+),(-?\d+\.\d+)\|", url)
+    return np.array(pairs, dtype=float)
+
+
+def waypoint_sky(
+    profile: Profile, shared_data_dir: str | Path, scene, seed: int = 0
+) -> WaypointSky:
+    """Replay the profile standing at each Magdeburg waypoint for its log's span.
+
+    Parameters
+    ----------
+    profile : the receiver profile (its ``nlos`` and ``cn0_tracking`` decide what is tracked)
+    shared_data_dir : the ``../shared/data`` folder
+    scene : the Magdeburg campus scene (``scenes/magdeburg-campus``)
+    seed : random seed of the first log's replay (log i uses seed + i)
+
+    Returns
+    -------
+    sky : WaypointSky
+    """
+    root = Path(shared_data_dir)
+    ephemeris = load_tle(root / MAGDEBURG_TLE)
+    georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
+    logs = [read_nmea_epochs(p) for p in sorted((root / WAYPOINT_LOGS).glob("NMEA_Log*.txt"))]
+    logs.sort(key=lambda ep: float(np.nanmin(ep.t_unix_s)))
+    markers = waypoint_markers(root)[WAYPOINT_MARKERS]
+    if len(logs) != len(markers):
+        raise ValueError(f"{len(logs)} waypoint logs for {len(markers)} markers")
+    # The geometry alone: which direct paths cross a building (no reflections considered).
+    bare = Receiver(replace(profile, nlos=replace(profile.nlos, enabled=False)), ephemeris,
+                    scene, georef)
+    rx = Receiver(profile, ephemeris, scene, georef)
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in WaypointSky.__dataclass_fields__}
+    for i, (real, (lat, lon)) in enumerate(zip(logs, markers, strict=True)):
+        enu = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, georef.alt0_hae_m),
+                                  georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+        ant = np.array([enu[0], enu[1], scene.ground_height_m(enu[0], enu[1]) + ANTENNA_HEIGHT_M])
+        t_real = real.t_unix_s[np.isfinite(real.t_unix_s)]
+        t = np.arange(np.ceil(t_real.min()), np.floor(t_real.max()) + 1.0)
+        poses = np.broadcast_to(ant, (t.size, 3))
+        sky = compute_sky(bare, t, poses)
+        track = pose.PoseTrack(t, "enu", poses.copy(), np.full((t.size, 3), np.nan))
+        sim = replay_epochs_in(rx, track, seed + i)
+        k_t, k_s = np.nonzero(sky.above_mask)
+        parts["log"].append(np.full(k_t.size, i))
+        parts["prn"].append(ephemeris.prn[k_s])
+        parts["el_deg"].append(sky.el_deg[k_t, k_s])
+        parts["crosses_building"].append(sky.blocked[k_t, k_s])
+        for name, ep in (("real_cn0_dbhz", real), ("sim_cn0_dbhz", sim)):
+            parts[name].append(_cn0_at(ep, t[k_t], ephemeris.prn[k_s]))
+    return WaypointSky(**{k: np.concatenate(v) for k, v in parts.items()})
+
+
+def _cn0_at(epochs: NmeaEpochs, t_unix_s: np.ndarray, prn: np.ndarray) -> np.ndarray:
+    """GSV SNR of each (time, PRN) in a log (NaN where not listed, not tracked or no epoch)."""
+    row = {round(float(t)): i for i, t in enumerate(epochs.t_unix_s) if np.isfinite(t)}
+    col = {int(p): j for j, p in enumerate(epochs.prn)}
+    i = np.array([row.get(round(float(t)), -1) for t in t_unix_s])
+    j = np.array([col.get(int(p), -1) for p in prn])
+    ok = (i >= 0) & (j >= 0)
+    out = np.full(t_unix_s.shape, np.nan)
+    out[ok] = epochs.cn0_dbhz[i[ok], j[ok]]
+    return out
+
+
+def blocked_pattern(sky: WaypointSky, which: str) -> dict[str, float]:
+    """How satellites whose direct path crosses a building are received.
+
+    Parameters
+    ----------
+    sky : from :func:`waypoint_sky`
+    which : "real" or "sim"
+
+    Returns
+    -------
+    pattern : ``tracked_blocked`` and ``tracked_clear`` (fractions of satellite-epochs tracked),
+        ``weaker_db`` (per PRN, the mean C/N0 of its tracked blocked epochs minus that of its
+        tracked clear ones, averaged over the PRNs having both), ``n_blocked`` (satellite-epochs)
+    """
+    cn0 = sky.real_cn0_dbhz if which == "real" else sky.sim_cn0_dbhz
+    tracked, blocked = np.isfinite(cn0), sky.crosses_building
+    diffs = []
+    for p in np.unique(sky.prn):
+        b, c = tracked & blocked & (sky.prn == p), tracked & ~blocked & (sky.prn == p)
+        if b.any() and c.any():
+            diffs.append(cn0[b].mean() - cn0[c].mean())
+    return {
+        "tracked_blocked": float(tracked[blocked].mean()) if blocked.any() else float("nan"),
+        "tracked_clear": float(tracked[~blocked].mean()) if (~blocked).any() else float("nan"),
+        "weaker_db": float(-np.mean(diffs)) if diffs else float("nan"),
+        "n_blocked": float(blocked.sum()),
+    }
