@@ -209,6 +209,126 @@ def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls)
     np.testing.assert_allclose(err, np.broadcast_to(expect, err.shape), atol=0.01)
 
 
+# A wide blocker A (12 m high, north 0..0.5) and a narrow reflector B (east -5..5, 30 m high,
+# north 20..20.5). From (3, 10, 1.5) a satellite at azimuth 160, elevation 30 is blocked by A;
+# its specular point on B's face lies at east 6.64, beyond B's edge, so only a scattered path
+# off B exists.
+NARROW_OBJ = TWO_WALLS_OBJ.replace("v -50 20 ", "v -5 20 ").replace("v 50 20 ", "v 5 20 ") \
+    .replace("v -50 20.5 ", "v -5 20.5 ").replace("v 50 20.5 ", "v 5 20.5 ")
+
+
+@pytest.fixture(scope="module")
+def narrow_reflector(tmp_path_factory):
+    from virtualgps.scene import load_scene
+
+    d = tmp_path_factory.mktemp("narrow")
+    (d / "walls.obj").write_text(NARROW_OBJ)
+    (d / "scene.toml").write_text(
+        'mesh = "walls.obj"\n[georef]\nlat_deg = 52.14\nlon_deg = 11.64\nalt_hae_m = 100.0\n'
+        '[axes]\neast = "+x"\nnorth = "+y"\nup = "+z"\n')
+    return load_scene(d)
+
+
+def _facades(scene):
+    from virtualgps.scene import CLASS_OCCLUDER
+
+    sel = scene.face_class == CLASS_OCCLUDER
+    return signals.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
+
+
+def _scatter_expect(a, u, p, alpha):
+    """Closed form: lobe loss and excess path of scattering at P (wall B's face, normal -north)."""
+    r = u * np.array([1.0, -1.0, 1.0])  # u mirrored in the east-up plane of the face
+    v = (a - p) / np.linalg.norm(a - p)
+    cos_psi = float(v @ -r)
+    return -10 * alpha * np.log10((1 + cos_psi) / 2), np.linalg.norm(a - p) - (p - a) @ u
+
+
+def test_scattering_off_a_wall_without_a_specular_point(narrow_reflector):
+    from virtualgps import geodesy
+
+    facades = _facades(narrow_reflector)
+    a = np.array([3.0, 10.0, 1.5])
+    u = geodesy.azel_to_enu_unit(160.0, 30.0)
+    assert narrow_reflector.blocked(a[None], u[None])[0]
+    assert not signals.reflections(narrow_reflector, facades, a[None], u[None], 50.0)[0][0]
+    found, excess, lobe = signals.scattered_paths(narrow_reflector, facades, a[None], u[None],
+                                                  50.0, 4.0, 30.0)
+    assert found[0]
+    # The specular point (east 6.64, up 7.64) clamped 0.1 m inside B's edge, or the point
+    # below B's top at that east: the one with the least loss.
+    t = 10.0 / (-u[1])
+    spec = a + u * np.array([1.0, -1.0, 1.0]) * t
+    assert spec[0] > 5.0
+    options = [_scatter_expect(a, u, np.array([4.9, 20.0, z]), 4.0) for z in (spec[2], 29.9)]
+    best = min(options)
+    assert lobe[0] == pytest.approx(best[0], abs=1e-6) and 0 < lobe[0] < 3
+    assert excess[0] == pytest.approx(best[1], abs=1e-6)
+    # Loss grows with alpha_R (a narrower lobe) and a cap below it drops the path.
+    narrow = signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 8.0,
+                                     30.0)[2][0]
+    assert narrow == pytest.approx(2 * lobe[0], rel=1e-9)
+    assert not signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 4.0,
+                                       0.5 * lobe[0])[0][0]
+    # No wall within max_dist_m: nothing.
+    assert not signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 5.0, 4.0,
+                                       30.0)[0][0]
+    # A satellite in the north lights B's far side, which the antenna can't see, but A's north
+    # face, which mirrors it with no lobe loss: excess 2 d (u . n), d = 9.5 m.
+    u_n = geodesy.azel_to_enu_unit(20.0, 30.0)
+    f_n, ex_n, lobe_n = signals.scattered_paths(narrow_reflector, facades, a[None], u_n[None],
+                                                50.0, 4.0, 30.0)
+    assert f_n[0] and lobe_n[0] == pytest.approx(0.0, abs=1e-9)
+    assert ex_n[0] == pytest.approx(2 * 9.5 * u_n[1], abs=1e-6)
+
+
+def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
+    from virtualgps import geodesy
+
+    facades = _facades(two_walls)
+    a = np.array([[3.0, 10.0, 1.5]])
+    u = geodesy.azel_to_enu_unit(180.0, 30.0)[None, :]
+    found, excess, lobe = signals.scattered_paths(two_walls, facades, a, u, 50.0, 4.0, 30.0)
+    assert found[0] and lobe[0] == pytest.approx(0.0, abs=1e-9)
+    assert excess[0] == pytest.approx(signals.reflections(two_walls, facades, a, u, 50.0)[1][0],
+                                      abs=1e-6)
+
+
+def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
+    from virtualgps import geodesy
+    from virtualgps.receiver import Georef, compute_sky, expected_cn0_dbhz
+
+    g = Georef(narrow_reflector.lat_deg, narrow_reflector.lon_deg, narrow_reflector.alt_hae_m)
+
+    class Sky(FixedSky):
+        def __init__(self, az, el):
+            super().__init__(az, el)
+            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
+            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
+
+    sky = Sky([160.0, 0.0], [30.0, 80.0])
+    ant = np.array([[3.0, 10.0, 1.5]])
+    cn0 = {"enabled": True, "cn0_zenith_dbhz": 45.0, "horizon_loss_db": 10.0}
+    out = {}
+    for scattering in (False, True):
+        prof = load_profile("ideal", {"cn0_tracking": cn0, "nlos": {
+            "enabled": True, "reflection_loss_db": 7.0, "scattering": scattering}})
+        rx = Receiver(prof, sky, narrow_reflector, g)
+        out[scattering] = (compute_sky(rx, np.array([1.49e9]), ant), prof)
+    plain, _ = out[False]
+    sky_s, prof = out[True]
+    assert plain.blocked[0, 0] and not plain.nlos[0, 0]  # no specular path
+    assert sky_s.nlos[0, 0] and not sky_s.nlos[0, 1]
+    u = sky_s.los_enu[0, 0] @ np.eye(3)
+    _, _, lobe = signals.scattered_paths(narrow_reflector, _facades(narrow_reflector), ant,
+                                         u[None], 30.0, 4.0, 10.0)
+    assert sky_s.nlos_loss_db[0, 0] == pytest.approx(7.0 + lobe[0], abs=1e-3)
+    direct = 45.0 - 10.0 * (1 - np.sin(np.radians(30.0)))
+    assert expected_cn0_dbhz(prof, sky_s)[0, 0] == pytest.approx(direct - 7.0 - lobe[0],
+                                                                  abs=1e-3)
+    assert sky_s.nlos_loss_db[0, 1] == 0.0
+
+
 def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
     from virtualgps import geodesy
     from virtualgps.config import BUNDLED_SCENES_DIR
@@ -296,3 +416,47 @@ def test_multipath_in_the_receiver_acts_near_a_wall_and_not_far_from_it(two_wall
     np.testing.assert_array_equal(far_on.lat_deg, far_off.lat_deg)
     np.testing.assert_array_equal(far_on.lon_deg, far_off.lon_deg)
     np.testing.assert_array_equal(far_on.alt_msl_m, far_off.alt_msl_m)
+
+
+def _random_walls(n_walls, half_width_m, length_m, seed):
+    """Facades of ``n_walls`` vertical rectangles (two triangles each, one object each) scattered
+    over a square of +-``half_width_m``, ``length_m`` (low, high) long, tops 0.5-15 m above the
+    ground at 0."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-half_width_m, half_width_m, (n_walls, 2))
+    ang = rng.uniform(0.0, np.pi, n_walls)
+    b = a + rng.uniform(*length_m, n_walls)[:, None] * np.c_[np.cos(ang), np.sin(ang)]
+    top = rng.uniform(0.5, 15.0, n_walls)
+    verts = np.concatenate([np.c_[a, np.zeros(n_walls)], np.c_[b, np.zeros(n_walls)],
+                            np.c_[b, top], np.c_[a, top]])  # corners k, k + n, k + 2n, k + 3n
+    k = np.arange(n_walls)
+    faces = np.concatenate([np.c_[k, k + n_walls, k + 2 * n_walls],
+                            np.c_[k, k + 2 * n_walls, k + 3 * n_walls]])
+    return signals.Facades(verts, faces, np.concatenate([k, k]))
+
+
+# A town (walls 2-20 m long over 200 m) and a dense thicket of short walls, where the nearest
+# wall often is not among the NEAR_WALLS nearest to the cell's centre (they are all close).
+@pytest.mark.parametrize("layout", [(400, 100.0, (2.0, 20.0)), (2000, 30.0, (0.5, 2.0))])
+@pytest.mark.parametrize("max_dist_m", [5.0, 30.0])
+def test_wall_distance_is_the_brute_force_nearest(layout, max_dist_m):
+    n_walls, half_width_m, length_m = layout
+    facades = _random_walls(n_walls, half_width_m, length_m, seed=3)
+    rng = np.random.default_rng(4)
+    walk = np.cumsum(rng.normal(0.0, 1.5, (300, 2)), axis=0)  # cells visited many times
+    xy = np.concatenate([rng.uniform(-1.2 * half_width_m, 1.2 * half_width_m, (300, 2)), walk])
+    ant = np.c_[xy, rng.uniform(0.0, 12.0, len(xy))]
+    got = facades.wall_dist_m(ant, max_dist_m)
+    # Every footprint, every antenna: distance to the segment, walls whose top is above it.
+    p0, p1 = facades.footprint_xy_m[:, 0], facades.footprint_xy_m[:, 1]
+    d = p1 - p0
+    t = np.clip(((xy[:, None] - p0) * d).sum(-1) / (d * d).sum(-1), 0.0, 1.0)
+    dist = np.linalg.norm(xy[:, None] - (p0 + t[..., None] * d), axis=-1)
+    dist = np.where(facades.hi_m[:, 2] > ant[:, 2, None], dist, np.inf).min(axis=1)
+    want = np.where(dist <= max_dist_m, dist, np.inf)
+    assert np.isfinite(want).sum() > 100
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
+    np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], atol=1e-9)
+    # One antenna at a time (the live loop) gives the same numbers as the batch.
+    one = [facades.wall_dist_m(ant[i : i + 1], max_dist_m)[0] for i in range(0, len(ant), 7)]
+    np.testing.assert_array_equal(one, got[::7])

@@ -20,6 +20,11 @@ through, and :func:`virtualgps.metrics.summary` computes the same statistics. In
 A one-hour record of an error correlated over ~150 s holds only ~12 independent samples, so
 its statistics scatter from seed to seed by 10-20 %. The simulated value of each statistic is
 the median over several seeds, and the seed-to-seed spread is reported beside it.
+
+- Magdeburg waypoints (:func:`waypoint_sky`): the phone's 14 static logs on the campus, each
+  at its map marker, against the receiver walked along the same markers through the campus
+  mesh: how often, and how much weaker, satellites whose direct path crosses a building are
+  still tracked.
 """
 
 from __future__ import annotations
@@ -34,7 +39,6 @@ import numpy as np
 
 from virtualgps import geodesy, nmea, pose
 from virtualgps.ephemeris import Constellation, load_tle
-from virtualgps.geodesy import geoid_sep_m
 from virtualgps.metrics import median_position, summary
 from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
 from virtualgps.profiles import Profile
@@ -148,7 +152,7 @@ def mt3339_setup(root: Path) -> tuple[Georef, pose.PoseTrack]:
     fixed = (real.quality > 0) & np.isfinite(real.lat_deg) & np.isfinite(real.alt_msl_m)
     lat, lon = real.lat_deg[fixed], real.lon_deg[fixed]
     sep = real.geoid_sep_m[fixed]
-    alt_hae = real.alt_msl_m[fixed] + np.where(np.isfinite(sep), sep, geoid_sep_m(lat, lon))
+    alt_hae = real.alt_msl_m[fixed] + np.where(np.isfinite(sep), sep, geodesy.geoid_sep_m(lat, lon))
     lat, lon, alt = median_position(lat, lon, alt_hae)
     t = np.arange(np.floor(real.t_unix_s[0]), np.ceil(real.t_unix_s[-1]) + 1.0)
     track = pose.PoseTrack(t, "enu", np.zeros((t.size, 3)), np.full((t.size, 3), np.nan))
@@ -314,14 +318,15 @@ def waypoint_markers(root: Path) -> np.ndarray:
 def waypoint_sky(
     profile: Profile, shared_data_dir: str | Path, scene, seed: int = 0
 ) -> WaypointSky:
-    """Replay the profile standing at each Magdeburg waypoint for its log's span.
+    """Replay the profile along the Magdeburg waypoints: standing at each for its log's span,
+    walking between them.
 
     Parameters
     ----------
     profile : the receiver profile (its ``nlos`` and ``cn0_tracking`` decide what is tracked)
     shared_data_dir : the ``../shared/data`` folder
     scene : the Magdeburg campus scene (``scenes/magdeburg-campus``)
-    seed : random seed of the first log's replay (log i uses seed + i)
+    seed : random seed of the replay
 
     Returns
     -------
@@ -339,17 +344,25 @@ def waypoint_sky(
     bare = Receiver(replace(profile, nlos=replace(profile.nlos, enabled=False)), ephemeris,
                     scene, georef)
     rx = Receiver(profile, ephemeris, scene, georef)
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in WaypointSky.__dataclass_fields__}
-    for i, (real, (lat, lon)) in enumerate(zip(logs, markers, strict=True)):
+    spans, antennas = [], []
+    for real, (lat, lon) in zip(logs, markers, strict=True):
         enu = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, georef.alt0_hae_m),
                                   georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
-        ant = np.array([enu[0], enu[1], scene.ground_height_m(enu[0], enu[1]) + ANTENNA_HEIGHT_M])
+        up = scene.ground_height_m(enu[0], enu[1]) + ANTENNA_HEIGHT_M
+        antennas.append(np.array([enu[0], enu[1], up]))
         t_real = real.t_unix_s[np.isfinite(real.t_unix_s)]
-        t = np.arange(np.ceil(t_real.min()), np.floor(t_real.max()) + 1.0)
-        poses = np.broadcast_to(ant, (t.size, 3))
-        sky = compute_sky(bare, t, poses)
-        track = pose.PoseTrack(t, "enu", poses.copy(), np.full((t.size, 3), np.nan))
-        sim = replay_epochs_in(rx, track, seed + i)
+        spans.append(np.arange(np.ceil(t_real.min()), np.floor(t_real.max()) + 1.0))
+    # The phone was carried from waypoint to waypoint with its receiver on: one run, walking
+    # in straight lines between the markers, so tracking carries over as it did in reality.
+    knots_t = np.concatenate([[sp[0], sp[-1]] for sp in spans])
+    knots = np.repeat(np.stack(antennas), 2, axis=0)
+    t_all = np.arange(knots_t[0], knots_t[-1] + 1.0)
+    walk = np.stack([np.interp(t_all, knots_t, knots[:, a]) for a in range(3)], axis=1)
+    sim = replay_epochs_in(rx, pose.PoseTrack(t_all, "enu", walk, np.full(walk.shape, np.nan)),
+                           seed)
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in WaypointSky.__dataclass_fields__}
+    for i, (real, t, ant) in enumerate(zip(logs, spans, antennas, strict=True)):
+        sky = compute_sky(bare, t, np.broadcast_to(ant, (t.size, 3)))
         k_t, k_s = np.nonzero(sky.above_mask)
         parts["log"].append(np.full(k_t.size, i))
         parts["prn"].append(ephemeris.prn[k_s])

@@ -89,7 +89,8 @@ def uere_sigma_m(
     -------
     sigma_m : (...) float, metres
     """
-    el = np.nan_to_num(np.asarray(el_deg, dtype=float), nan=90.0)
+    el = np.asarray(el_deg, dtype=float)
+    el = np.where(np.isnan(el), 90.0, el)  # (nan_to_num is slow on the live loop's tiny arrays)
     mp = multipath_a_m + multipath_b_m * np.exp(-el / 10.0)
     return np.sqrt(
         sis_m**2
@@ -201,7 +202,7 @@ def wls_fix(
     sigma_enu_m : (..., 3) float, metres, sqrt(diag Q) of east, north and up (up NaN for a 2D
         fix); NaN with fewer than ``n_states`` used satellites or a singular geometry
     """
-    u = -np.nan_to_num(los_enu)
+    u = -np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num: slow on tiny arrays)
     ones = np.ones(los_enu.shape[:-1] + (1,))
     g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
     gw_t = np.swapaxes(g * np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None], -1, -2)

@@ -33,13 +33,14 @@ What an MTK receiver writes, taken from the real logs in ``../shared/data`` (fil
 
 Speed (DESIGN section 8; ``tools/bench_nmea.py``): :func:`render_batch` builds whole batches in
 numpy as NUL-padded character matrices (checksums by one XOR reduction per sentence row), about
-13 us per epoch for the default sentences with 12 satellites in view; a daemon's single epoch
+10 us per epoch for the default sentences with 12 satellites in view; a daemon's single epoch
 takes a scalar path of plain f-strings (about 80 us), which follows the same rules and is tested
 to give identical bytes.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Iterable, Mapping
@@ -294,6 +295,7 @@ _SMALL = 48  # batches shorter than this take the scalar path (numpy calls cost 
 _ABS_MAX = 1.0e12
 _ABS_MAX_DEG = 1.0e6
 _UNIX_EPOCH_ORDINAL = 719163  # date(1970, 1, 1).toordinal()
+_TABLE_MAX_WIDTH = 4  # fields up to this many digits print by table lookup (10**4 rows, 40 kB)
 
 
 def _text(s: str | bytes, n: int) -> np.ndarray:
@@ -307,16 +309,32 @@ def _cat(n: int, parts: list) -> np.ndarray:
     return np.concatenate([_text(p, n) if isinstance(p, str | bytes) else p for p in parts], axis=1)
 
 
-def _digits(v: np.ndarray, width: int, min_digits: int) -> np.ndarray:
-    """(n, width) uint8: decimal digits of non-negative integers, right-aligned, at least
-    ``min_digits`` digits (zero-padded), NUL to the left. Values beyond ``width`` digits are
-    clipped (they never occur for valid fixes)."""
-    v = np.clip(v, 0, _POW10[width] - 1).astype(np.int64)
+def _digit_rows(v: np.ndarray, width: int, min_digits: int) -> np.ndarray:
+    """(n, width) uint8: the rows of :func:`_digits` for ``v`` already in [0, 10**width)."""
     p = _POW10[width - 1 :: -1]  # 10**(width-1) ... 1
     col = (v[:, None] // p) % 10
     n_dig = 1 + (v[:, None] >= p[:-1]).sum(axis=1)
     keep = np.arange(width) >= width - np.maximum(n_dig, min_digits)[:, None]
     return np.where(keep, col + _DIGIT0, _NUL).astype(np.uint8)
+
+
+@functools.cache
+def _digit_table(width: int, min_digits: int) -> np.ndarray:
+    """(10**width, width) uint8: the :func:`_digits` row of every value of ``width`` digits."""
+    table = _digit_rows(np.arange(_POW10[width], dtype=np.int64), width, min_digits)
+    table.flags.writeable = False  # shared by every call
+    return table
+
+
+def _digits(v: np.ndarray, width: int, min_digits: int) -> np.ndarray:
+    """(n, width) uint8: decimal digits of non-negative integers, right-aligned, at least
+    ``min_digits`` digits (zero-padded), NUL to the left. Values beyond ``width`` digits are
+    clipped (they never occur for valid fixes)."""
+    v = np.clip(v, 0, _POW10[width] - 1).astype(np.int64)
+    if width <= _TABLE_MAX_WIDTH:
+        # one gather instead of ~10 array passes: most fields are 2-4 digits wide
+        return _digit_table(width, min_digits)[v]
+    return _digit_rows(v, width, min_digits)
 
 
 def _fixed(
@@ -576,10 +594,12 @@ def _render_block(
             raise AssertionError(name)
         out_parts.append(_sentence(n, body, emit[name]))
 
-    m = np.ascontiguousarray(np.concatenate(out_parts, axis=1))
-    w = m.shape[1]
-    data = m.tobytes()
-    return [data[i * w : (i + 1) * w].replace(b"\0", b"") for i in range(n)]
+    m = np.concatenate(out_parts, axis=1)
+    # drop the NULs of the whole block at once, then cut it at each epoch's end
+    keep = m != _NUL
+    data = m[keep].tobytes()
+    ends = np.cumsum(keep.sum(axis=1)).tolist()
+    return [data[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
 
 
 def _gsv(fixes: Fixes, fmt: NmeaFormat, sl: slice, emit: np.ndarray | None) -> np.ndarray:
@@ -597,7 +617,9 @@ def _gsv(fixes: Fixes, fmt: NmeaFormat, sl: slice, emit: np.ndarray | None) -> n
     # lexsort is stable: equal keys keep the column (channel) order
     order = np.lexsort((-np.nan_to_num(el, nan=0.0), el_nan, ~in_view), axis=-1)
     n_view = np.minimum(in_view.sum(axis=1), fmt.gsv_max_sats)
-    n_ent = min(n_sat, fmt.gsv_max_sats)
+    # columns for the most satellites any epoch lists, not for every satellite of the TLE set
+    # (~31, of which ~12 are in view): the text is the same, the matrices a third the size
+    n_ent = int(n_view.max(initial=0))
     n_msg_max = max(1, (n_ent + 3) // 4)
     slots = 4 * n_msg_max
     order = order[:, :n_ent]

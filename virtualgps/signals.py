@@ -6,6 +6,9 @@ state machine is evaluated with running-index tricks instead of a loop over epoc
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -76,7 +79,7 @@ def track(
     tracked : (n_t, m) bool
     run : (m,) int, the run after the last row (the next call's ``run0``)
     """
-    c = np.nan_to_num(cn0_dbhz, nan=-np.inf)
+    c = np.where(np.isnan(cn0_dbhz), -np.inf, cn0_dbhz)  # (nan_to_num: slow on tiny arrays)
     run = run_length(c >= acq_dbhz, run0)
     # Events: +1 acquire, -1 lose; otherwise the state carries on (hysteresis band).
     event = np.where(run >= reacq_epochs, 1, np.where(c < track_dbhz, -1, 0))
@@ -94,6 +97,29 @@ def track(
 INDEX_STEP_M = 5.0
 CELL_M = 8.0  # side of the square cells whose candidate walls are cached
 MAX_CACHED_CELLS = 100_000  # per radius (~100 walls each: tens of MB at most); then rebuilt
+NEAR_WALLS = 16  # walls per cell that wall_dist_m tries first (the nearest is ~7 m away)
+SCATTER_WALLS = 24  # walls nearest an antenna's cell that scattered_paths tries (see there)
+HEIGHT_BAND_M = 0.5  # wall_dist_m's cell lists leave out walls below the antennas' band
+
+
+@dataclass(frozen=True, eq=False)
+class _NearWalls:
+    """One ground cell's walls for :meth:`Facades.wall_dist_m`, nearest to the cell's centre
+    first.
+
+    Attributes
+    ----------
+    planes : (k,) int, the walls that can be within the search distance of a point in the cell
+    centre_dist_m : (k,) float, metres, ascending, their footprints' distances from the centre
+    head : (6, NEAR_WALLS) float, the first walls' columns of ``Facades._segments`` (padded
+        with its last column, no wall)
+    next_dist_m : metres, the centre distance of the first wall after the head (inf: none)
+    """
+
+    planes: np.ndarray
+    centre_dist_m: np.ndarray
+    head: np.ndarray
+    next_dist_m: float
 
 
 class Facades:
@@ -173,17 +199,21 @@ class Facades:
         self.along = along
         self.ends_s = ends_s
         self.footprint_xy_m = base[:, None, :] + ends_s[:, :, None] * along[:, None, :]
-        # The same as contiguous columns, for the per-pair arithmetic of wall_dist_m.
+        # The same as rows of one table, for the arithmetic of wall_dist_m (one gather): start
+        # east and north, span east and north, 1 / length^2, top height; a last column that
+        # plane -1 picks, a wall without a top (never counted).
         start, span = self.footprint_xy_m[:, 0], np.diff(self.footprint_xy_m, axis=1)[:, 0]
-        self._x0, self._y0 = start[:, 0].copy(), start[:, 1].copy()
-        self._dx, self._dy = span[:, 0].copy(), span[:, 1].copy()
-        self._inv_len2 = 1.0 / np.maximum(self._dx**2 + self._dy**2, 1e-12)
-        self._top_m = self.hi_m[:, 2].copy()
+        self._segments = np.zeros((6, n_planes + 1))
+        self._segments[:4, :-1] = np.concatenate([start, span], axis=1).T
+        self._segments[4, :-1] = 1.0 / np.maximum(span[:, 0] ** 2 + span[:, 1] ** 2, 1e-12)
+        self._segments[5] = np.append(self.hi_m[:, 2], -np.inf)
         self.index_n = n_pts
         self.index_start = np.cumsum(n_pts + 1) - (n_pts + 1)
         # Candidate walls per cell of the ground (see candidates): an antenna stays in a cell
         # for many epochs, and the daemon asks once per epoch.
         self._cells: dict[tuple[float, float], dict[int, np.ndarray]] = {}
+        # Per max_dist_m, cell and height band: its walls, nearest first (wall_dist_m).
+        self._near_cells: dict[float, dict[tuple[tuple[float, float], float], _NearWalls]] = {}
 
     def __len__(self) -> int:
         return len(self.normal)
@@ -271,6 +301,13 @@ class Facades:
         The distance to a wall is to its footprint, the segment its triangles cover along its
         plane; walls lower than the antenna are left out, as in :func:`reflections`.
 
+        Each ``CELL_M`` cell of the ground keeps its walls sorted by their distance from the
+        cell's centre, per ``HEIGHT_BAND_M`` band of antenna height (cached, see
+        :meth:`_near_walls`). An antenna r metres from the centre measures the ``NEAR_WALLS``
+        nearest first; a wall d metres from the centre is at least d - r from the antenna, so
+        only the walls with d - r below the nearest distance found (few, and rarely any) are
+        measured after them.
+
         Parameters
         ----------
         antenna_enu_m : (m, 3) metres, scene ENU
@@ -280,24 +317,113 @@ class Facades:
         -------
         dist_m : (m,) float, metres; inf where no wall is within ``max_dist_m``
         """
-        m = len(antenna_enu_m)
-        # A footprint within max_dist_m has an index point within max_dist_m + half a step
-        # (the distances of reflections' search: one cache serves both when they agree).
-        q, j = self.candidates(antenna_enu_m[:, :2], max_dist_m + INDEX_STEP_M,
-                               max_dist_m + 1e-3)
-        k = np.flatnonzero(self._top_m[j] > antenna_enu_m[q, 2])
-        q, j = q[k], j[k]
-        # Nearest point of each footprint segment: its start + t (end - start), t in [0, 1].
-        px = antenna_enu_m[q, 0] - self._x0[j]
-        py = antenna_enu_m[q, 1] - self._y0[j]
-        dx, dy = self._dx[j], self._dy[j]
-        t = np.clip((px * dx + py * dy) * self._inv_len2[j], 0.0, 1.0)
-        px -= t * dx
-        py -= t * dy
-        dist2 = np.full(m, np.inf)
-        np.minimum.at(dist2, q, px * px + py * py)
+        ant = np.asarray(antenna_enu_m, dtype=float)
+        m = len(ant)
+        if self.tree is None or m == 0:
+            return np.full(m, np.inf)
+        cell = np.floor(ant[:, :2] / CELL_M)
+        if (cell == cell[0]).all():  # one cell (the live loop's epoch): no grouping to do
+            inverse = np.zeros(m, np.intp)
+            near = self._near_walls(cell[:1], [float(ant[:, 2].min())], max_dist_m)
+            head = near[0].head[:, None, :]  # (6, 1, NEAR_WALLS): the same for every antenna
+            nxt: float | np.ndarray = near[0].next_dist_m
+        else:
+            ci = cell.astype(np.int64)
+            key = ci[:, 0] * (1 << 32) + ci[:, 1]  # as in candidates
+            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+            z_min = np.full(len(first), np.inf)
+            np.minimum.at(z_min, inverse, ant[:, 2])
+            near = self._near_walls(cell[first], z_min, max_dist_m)
+            head = np.stack([w.head for w in near], axis=1)[:, inverse]  # (6, m, NEAR_WALLS)
+            nxt = np.array([w.next_dist_m for w in near])[inverse]
+        dist2 = self._footprint_dist2(ant, head).min(axis=1)
+        # The walls that may be nearer than the head's nearest (or than max_dist_m): centre
+        # distance below that plus the antenna's distance from the centre (and a margin for
+        # round-off); none after the head where nxt is inf.
+        off = ant[:, :2] - (cell + 0.5) * CELL_M
+        reach = np.minimum(np.sqrt(dist2), max_dist_m) + np.hypot(off[:, 0], off[:, 1]) + 1e-6
+        todo = np.flatnonzero(reach >= nxt)
+        if todo.size:
+            # Each antenna's walls after the head, those within its reach, -1 after them.
+            rows = [near[c] for c in inverse[todo].tolist()]
+            n_more = [int(np.searchsorted(w.centre_dist_m, r, side="right")) - NEAR_WALLS
+                      for w, r in zip(rows, reach[todo].tolist(), strict=True)]
+            rest = np.full((todo.size, max(n_more)), -1, np.intp)
+            for r, (w, n) in enumerate(zip(rows, n_more, strict=True)):
+                rest[r, :n] = w.planes[NEAR_WALLS : NEAR_WALLS + n]
+            dist2[todo] = np.minimum(
+                dist2[todo], self._footprint_dist2(ant[todo], self._segments[:, rest]).min(axis=1)
+            )
         dist = np.sqrt(dist2)
         return np.where(dist <= max_dist_m, dist, np.inf)
+
+    def _footprint_dist2(self, antenna_enu_m: np.ndarray, seg: np.ndarray) -> np.ndarray:
+        """Squared horizontal distances from antennas to wall footprints.
+
+        Parameters
+        ----------
+        antenna_enu_m : (m, 3) metres, scene ENU
+        seg : (6, m or 1, k) float, the walls' columns of ``_segments``, a row per antenna
+
+        Returns
+        -------
+        dist2_m2 : (m, k) float, square metres; inf for walls whose top is not above the
+            antenna
+        """
+        x0, y0, dx, dy, inv_len2, top = seg
+        # Nearest point of each footprint segment: its start + t (end - start), t in [0, 1].
+        px = antenna_enu_m[:, 0, None] - x0
+        py = antenna_enu_m[:, 1, None] - y0
+        t = np.minimum(np.maximum((px * dx + py * dy) * inv_len2, 0.0), 1.0)
+        px -= t * dx
+        py -= t * dy
+        return np.where(top > antenna_enu_m[:, 2, None], px * px + py * py, np.inf)
+
+    def _near_walls(
+        self, cells: np.ndarray, z_min_m: Sequence[float], max_dist_m: float
+    ) -> list[_NearWalls]:
+        """The walls that can be within ``max_dist_m`` of a point in each cell and rise above
+        the height band of ``z_min_m``, nearest to the cell's centre first (cached per cell
+        and band).
+
+        Parameters
+        ----------
+        cells : (n, 2) float, whole numbers, the cells' east/north indices
+        z_min_m : n heights, metres: walls whose top is below the band of this height (a
+            multiple of ``HEIGHT_BAND_M``) are left out
+        max_dist_m : metres
+
+        Returns
+        -------
+        near : n :class:`_NearWalls`
+        """
+        cache = self._near_cells.setdefault(float(max_dist_m), {})
+        band = np.floor(np.asarray(z_min_m) / HEIGHT_BAND_M)
+        wanted = list(zip(map(tuple, cells.tolist()), band.tolist(), strict=True))
+        missing = [i for i, kb in enumerate(wanted) if kb not in cache]
+        if missing:
+            if len(cache) + len(missing) > MAX_CACHED_CELLS:
+                cache.clear()
+                missing = list(range(len(wanted)))
+            centres = (cells[missing] + 0.5) * CELL_M
+            # A footprint within max_dist_m has an index point within max_dist_m + half a step
+            # (the distances of reflections' search: one cache serves both when they agree).
+            q, j = self.candidates(centres, max_dist_m + INDEX_STEP_M, max_dist_m + 1e-3)
+            floor_m = band[missing] * HEIGHT_BAND_M  # every antenna is at least this high
+            dc = np.sqrt(self._footprint_dist2(np.c_[centres[q], floor_m[q]],
+                                               self._segments[:, j, None])[:, 0])
+            # Walls further than max_dist_m from every point of the cell never count (nor
+            # those dc marks inf: not above the band).
+            keep = np.flatnonzero(dc - (CELL_M * np.sqrt(0.5) + 1e-6) <= max_dist_m)
+            keep = keep[np.lexsort((dc[keep], q[keep]))]  # by cell, then nearest first
+            ends = np.cumsum(np.bincount(q[keep], minlength=len(missing))).tolist()
+            for i, a, b in zip(missing, [0, *ends[:-1]], ends, strict=True):
+                planes, dist = j[keep[a:b]], dc[keep[a:b]]
+                head = np.full(NEAR_WALLS, -1, np.intp)
+                head[: min(planes.size, NEAR_WALLS)] = planes[:NEAR_WALLS]
+                nxt = float(dist[NEAR_WALLS]) if planes.size > NEAR_WALLS else np.inf
+                cache[wanted[i]] = _NearWalls(planes, dist, self._segments[:, head], nxt)
+        return [cache[kb] for kb in wanted]
 
 
 def reflections(
@@ -395,6 +521,129 @@ def reflections(
     found[q[idx][first]] = True
     excess[q[idx][first]] = ex[first]
     return found, excess
+
+
+def scattered_paths(
+    scene,
+    facades: Facades,
+    antenna_enu_m: np.ndarray,
+    sat_dir_enu: np.ndarray,
+    max_dist_m: float,
+    lobe_alpha: float,
+    max_lobe_loss_db: float,
+    max_walls: int = SCATTER_WALLS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Single-bounce paths off rough walls: diffuse scattering in a lobe around the specular.
+
+    Real facades (windows, ledges, rough plaster) scatter part of the signal away from the
+    specular direction, so a blocked satellite is received off walls that have no specular
+    point for it. We use the directive scattering model of Degli-Esposti et al. ("Measurement
+    and modelling of scattering from buildings", IEEE Trans. Antennas Propag. 55(1), 2007): the
+    scattered power falls off as ((1 + cos psi) / 2) ** alpha_R, psi the angle between the
+    scattered direction and the specular one, i.e. a loss of
+    -10 alpha_R log10((1 + cos psi) / 2) dB relative to the specular reflection (alpha_R of a
+    few for building walls in their measurements).
+
+    For each of the ``max_walls`` walls nearest the antenna's ground cell (``CELL_M``; nearer
+    walls scatter more power to it, and the cap keeps the search to a few hundred rays per
+    epoch) that faces the antenna within ``max_dist_m`` and is lit by the satellite on that
+    side, two scattering points P are tried: the wall point nearest the specular point (the
+    specular point clamped into the wall's extent, 0.1 m inside its edges; where the specular
+    point lies on the wall, P is it and the lobe loss 0), and the point straight above it
+    below the wall's top. A path counts when the first occluder from the antenna towards P is
+    at P and nothing blocks P -> satellite (both legs ray-checked); of several, the least
+    lossy, then the shortest, is kept. Its excess length over the direct path is
+    |a - P| - (P - a) . u (plane wave from direction u).
+
+    Parameters
+    ----------
+    scene : the Scene (occluder ray queries)
+    facades : its :class:`Facades`
+    antenna_enu_m : (m, 3) metres, scene ENU, one antenna per query
+    sat_dir_enu : (m, 3) unit vectors antenna -> satellite, scene ENU
+    max_dist_m : only walls closer than this scatter
+    lobe_alpha : alpha_R, the lobe's exponent (larger: narrower lobe, more like a mirror)
+    max_lobe_loss_db : paths scattered further off the specular (more loss) are ignored
+    max_walls : walls tried per antenna, nearest to its cell's centre first
+
+    Returns
+    -------
+    found : (m,) bool, a scattered path exists
+    excess_m : (m,) float, metres, its extra length (NaN where none)
+    lobe_loss_db : (m,) float, dB, the loss relative to a specular reflection (NaN where none)
+    """
+    m = len(antenna_enu_m)
+    found = np.zeros(m, bool)
+    excess = np.full(m, np.nan)
+    loss = np.full(m, np.nan)
+    if m == 0 or len(facades) == 0:
+        return found, excess, loss
+    ant = np.asarray(antenna_enu_m, dtype=float)
+    u = np.asarray(sat_dir_enu, dtype=float)
+    # The walls nearest each antenna's ground cell (cached per cell and height band).
+    cell = np.floor(ant[:, :2] / CELL_M)
+    band = np.floor(ant[:, 2] / HEIGHT_BAND_M) * HEIGHT_BAND_M
+    key = np.c_[cell, band]
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    near = facades._near_walls(uniq[:, :2], uniq[:, 2].tolist(), max_dist_m)
+    lists = [w.planes[:max_walls] for w in near]
+    counts = np.fromiter(map(len, lists), np.intp, len(lists))
+    flat = np.concatenate(lists) if lists else np.zeros(0, np.intp)
+    rep = counts[inverse.ravel()]
+    q = np.repeat(np.arange(m), rep)
+    j = flat[np.repeat((np.cumsum(counts) - counts)[inverse.ravel()], rep) + _ranges(rep)]
+    nrm, off = facades.normal[j], facades.offset_m[j]
+    d = ant[q, 0] * nrm[:, 0] + ant[q, 1] * nrm[:, 1] - off
+    side = np.sign(d)
+    nx, ny = nrm[:, 0] * side, nrm[:, 1] * side  # facing the antenna
+    un = u[q, 0] * nx + u[q, 1] * ny  # > 0: the satellite lights the side the antenna sees
+    d = np.abs(d)
+    k = np.flatnonzero((un > 1e-6) & (d > 0.05) & (d <= max_dist_m)
+                       & (facades.hi_m[j, 2] > ant[q, 2]))
+    q, j, d, nx, ny, un = q[k], j[k], d[k], nx[k], ny[k], un[k]
+    # Specular point, then clamped onto the wall (its footprint and height, 0.1 m inside).
+    t = d / un
+    rx, ry, rz = u[q, 0] - 2.0 * un * nx, u[q, 1] - 2.0 * un * ny, u[q, 2]
+    sx, sy, sz = ant[q, 0] + rx * t, ant[q, 1] + ry * t, ant[q, 2] + rz * t
+    along = facades.along[j]
+    e0, e1 = facades.ends_s[j, 0], facades.ends_s[j, 1]
+    inset = np.minimum(0.1, 0.5 * (e1 - e0))
+    s_al = np.clip(sx * along[:, 0] + sy * along[:, 1], e0 + inset, e1 - inset)
+    lo_z, hi_z = facades.lo_m[j, 2], facades.hi_m[j, 2]
+    z_in = np.minimum(0.1, 0.5 * (hi_z - lo_z))
+    px = facades.offset_m[j] * facades.normal[j, 0] + s_al * along[:, 0]
+    py = facades.offset_m[j] * facades.normal[j, 1] + s_al * along[:, 1]
+    # Two points per wall: the one nearest the specular point, and the one below the wall's
+    # top edge, which the satellite still sees over the buildings in front of it more often.
+    pz = np.concatenate([np.clip(sz, lo_z + z_in, hi_z - z_in), hi_z - z_in])
+    q, j, nx, ny, rx, ry, rz, px, py = (np.concatenate([a, a]) for a in
+                                        (q, j, nx, ny, rx, ry, rz, px, py))
+    vx, vy, vz = ant[q, 0] - px, ant[q, 1] - py, ant[q, 2] - pz  # P -> antenna
+    dist = np.sqrt(vx * vx + vy * vy + vz * vz)
+    cos_psi = -(vx * rx + vy * ry + vz * rz) / dist  # scattered vs specular (-r) direction
+    lobe = -10.0 * lobe_alpha * np.log10(np.clip(0.5 * (1.0 + cos_psi), 1e-12, 1.0))
+    k = np.flatnonzero(lobe <= max_lobe_loss_db)
+    if k.size == 0:
+        return found, excess, loss
+    to_p = -np.stack([vx[k], vy[k], vz[k]], axis=1) / dist[k, None]
+    # Leg 1: the first occluder from the antenna towards P is the wall at P.
+    hit = scene.hit_distance_m(ant[q[k]], to_p)
+    k = k[np.abs(hit - dist[k]) < 0.02 + 1e-4 * dist[k]]
+    # Leg 2: open sky from P (nudged off the wall) to the satellite.
+    p_off = np.stack([px[k] + 0.05 * nx[k], py[k] + 0.05 * ny[k], pz[k]], axis=1)
+    k = k[~scene.blocked(p_off, u[q[k]])]
+    if k.size == 0:
+        return found, excess, loss
+    ex = dist[k] - ((px[k] - ant[q[k], 0]) * u[q[k], 0] + (py[k] - ant[q[k], 1]) * u[q[k], 1]
+                    + (pz[k] - ant[q[k], 2]) * u[q[k], 2])
+    order = np.lexsort((ex, lobe[k], q[k]))  # per query: least loss, then shortest
+    k, ex = k[order], ex[order]
+    first = np.ones(k.size, bool)
+    first[1:] = q[k][1:] != q[k][:-1]
+    found[q[k][first]] = True
+    excess[q[k][first]] = ex[first]
+    loss[q[k][first]] = lobe[k][first]
+    return found, excess, loss
 
 
 def _ranges(counts: np.ndarray) -> np.ndarray:
