@@ -137,7 +137,7 @@ def test_waypoint_geometry_with_the_phones_sensitivity_is_near_the_phone(magdebu
     # The phone tracks down to its SNR floor of 12 dB-Hz (an MTK receiver stops at ~14): with
     # tracking thresholds like the phone's, the simulated receiver keeps clear satellites as
     # often as the phone and loses about as much on a building crossing, but tracks about half
-    # as many blocked satellites (27 % vs 57 %): the paths it finds (for ~65 %) are often too
+    # as many blocked satellites (25 % vs 57 %): the paths it finds (for ~60 %) are often too
     # weak; the LOD1 mesh has no facade detail and single bounces only (see the README).
     data, scene = magdeburg
     phone = load_profile("holux-m1000", {"cn0_tracking": {"acq_dbhz": 12.0, "track_dbhz": 9.0}})

@@ -214,7 +214,7 @@ class NlosParams:
     directive model; see :func:`virtualgps.signals.scattered_paths`, which tries the walls
     nearest the antenna); paths losing more than ``scattering_max_loss_db`` are ignored.
     Specular reflection alone finds a path for ~12 % of the building-crossing satellite-epochs
-    at the Magdeburg waypoints, where the phone tracked 57 %; with scattering ~65 % have one."""
+    at the Magdeburg waypoints, where the phone tracked 57 %; with scattering ~60 % have one."""
 
     enabled: bool = False
     reflection_loss_db: float = 7.0

@@ -98,7 +98,7 @@ INDEX_STEP_M = 5.0
 CELL_M = 8.0  # side of the square cells whose candidate walls are cached
 MAX_CACHED_CELLS = 100_000  # per radius (~100 walls each: tens of MB at most); then rebuilt
 NEAR_WALLS = 16  # walls per cell that wall_dist_m tries first (the nearest is ~7 m away)
-SCATTER_WALLS = 24  # walls nearest an antenna's cell that scattered_paths tries (see there)
+SCATTER_WALLS = 16  # walls nearest an antenna's cell that scattered_paths tries (see there)
 HEIGHT_BAND_M = 0.5  # wall_dist_m's cell lists leave out walls below the antennas' band
 
 
@@ -581,68 +581,77 @@ def scattered_paths(
     ant = np.asarray(antenna_enu_m, dtype=float)
     u = np.asarray(sat_dir_enu, dtype=float)
     # The walls nearest each antenna's ground cell (cached per cell and height band).
-    cell = np.floor(ant[:, :2] / CELL_M)
-    band = np.floor(ant[:, 2] / HEIGHT_BAND_M) * HEIGHT_BAND_M
-    key = np.c_[cell, band]
-    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    near = facades._near_walls(uniq[:, :2], uniq[:, 2].tolist(), max_dist_m)
+    cell = np.floor(ant[:, :2] / CELL_M).astype(np.int64)
+    band = np.floor(ant[:, 2] / HEIGHT_BAND_M).astype(np.int64)
+    key = (cell[:, 0] * (1 << 24) + cell[:, 1]) * (1 << 16) + band  # unique within +-2^23 cells
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    near = facades._near_walls(cell[first].astype(float), (band[first] * HEIGHT_BAND_M).tolist(),
+                               max_dist_m)
     lists = [w.planes[:max_walls] for w in near]
     counts = np.fromiter(map(len, lists), np.intp, len(lists))
     flat = np.concatenate(lists) if lists else np.zeros(0, np.intp)
-    rep = counts[inverse.ravel()]
+    rep = counts[inverse]
     q = np.repeat(np.arange(m), rep)
-    j = flat[np.repeat((np.cumsum(counts) - counts)[inverse.ravel()], rep) + _ranges(rep)]
-    nrm, off = facades.normal[j], facades.offset_m[j]
-    d = ant[q, 0] * nrm[:, 0] + ant[q, 1] * nrm[:, 1] - off
+    j = flat[np.repeat((np.cumsum(counts) - counts)[inverse], rep) + _ranges(rep)]
+    ax, ay, az = ant[q, 0], ant[q, 1], ant[q, 2]
+    ux, uy, uz = u[q, 0], u[q, 1], u[q, 2]
+    nrm_x, nrm_y = facades.normal[j, 0], facades.normal[j, 1]
+    d = ax * nrm_x + ay * nrm_y - facades.offset_m[j]
     side = np.sign(d)
-    nx, ny = nrm[:, 0] * side, nrm[:, 1] * side  # facing the antenna
-    un = u[q, 0] * nx + u[q, 1] * ny  # > 0: the satellite lights the side the antenna sees
+    nx, ny = nrm_x * side, nrm_y * side  # facing the antenna
+    un = ux * nx + uy * ny  # > 0: the satellite lights the side the antenna sees
     d = np.abs(d)
     k = np.flatnonzero((un > 1e-6) & (d > 0.05) & (d <= max_dist_m)
-                       & (facades.hi_m[j, 2] > ant[q, 2]))
+                       & (facades.hi_m[j, 2] > az))
     q, j, d, nx, ny, un = q[k], j[k], d[k], nx[k], ny[k], un[k]
+    ax, ay, az, ux, uy, uz = ax[k], ay[k], az[k], ux[k], uy[k], uz[k]
     # Specular point, then clamped onto the wall (its footprint and height, 0.1 m inside).
     t = d / un
-    rx, ry, rz = u[q, 0] - 2.0 * un * nx, u[q, 1] - 2.0 * un * ny, u[q, 2]
-    sx, sy, sz = ant[q, 0] + rx * t, ant[q, 1] + ry * t, ant[q, 2] + rz * t
+    rx, ry = ux - 2.0 * un * nx, uy - 2.0 * un * ny  # (r's up component is u's)
     along = facades.along[j]
     e0, e1 = facades.ends_s[j, 0], facades.ends_s[j, 1]
     inset = np.minimum(0.1, 0.5 * (e1 - e0))
-    s_al = np.clip(sx * along[:, 0] + sy * along[:, 1], e0 + inset, e1 - inset)
+    s_al = np.clip((ax + rx * t) * along[:, 0] + (ay + ry * t) * along[:, 1], e0 + inset,
+                   e1 - inset)
     lo_z, hi_z = facades.lo_m[j, 2], facades.hi_m[j, 2]
     z_in = np.minimum(0.1, 0.5 * (hi_z - lo_z))
     px = facades.offset_m[j] * facades.normal[j, 0] + s_al * along[:, 0]
     py = facades.offset_m[j] * facades.normal[j, 1] + s_al * along[:, 1]
+    vx, vy = ax - px, ay - py  # P -> antenna, horizontal
     # Two points per wall: the one nearest the specular point, and the one below the wall's
     # top edge, which the satellite still sees over the buildings in front of it more often.
-    pz = np.concatenate([np.clip(sz, lo_z + z_in, hi_z - z_in), hi_z - z_in])
-    q, j, nx, ny, rx, ry, rz, px, py = (np.concatenate([a, a]) for a in
-                                        (q, j, nx, ny, rx, ry, rz, px, py))
-    vx, vy, vz = ant[q, 0] - px, ant[q, 1] - py, ant[q, 2] - pz  # P -> antenna
-    dist = np.sqrt(vx * vx + vy * vy + vz * vz)
-    cos_psi = -(vx * rx + vy * ry + vz * rz) / dist  # scattered vs specular (-r) direction
+    pz = np.concatenate([np.clip(az + uz * t, lo_z + z_in, hi_z - z_in), hi_z - z_in])
+    two = np.r_[np.arange(q.size), np.arange(q.size)]
+    vz = az[two] - pz
+    h2 = vx * vx + vy * vy
+    dist = np.sqrt(h2[two] + vz * vz)
+    cos_psi = -((vx * rx + vy * ry)[two] + vz * uz[two]) / dist  # vs the specular (-r)
     lobe = -10.0 * lobe_alpha * np.log10(np.clip(0.5 * (1.0 + cos_psi), 1e-12, 1.0))
     k = np.flatnonzero(lobe <= max_lobe_loss_db)
     if k.size == 0:
         return found, excess, loss
-    to_p = -np.stack([vx[k], vy[k], vz[k]], axis=1) / dist[k, None]
+    i = two[k]
+    to_p = -np.stack([vx[i], vy[i], vz[k]], axis=1) / dist[k, None]
     # Leg 1: the first occluder from the antenna towards P is the wall at P.
-    hit = scene.hit_distance_m(ant[q[k]], to_p)
+    hit = scene.hit_distance_m(ant[q[i]], to_p)
     k = k[np.abs(hit - dist[k]) < 0.02 + 1e-4 * dist[k]]
     # Leg 2: open sky from P (nudged off the wall) to the satellite.
-    p_off = np.stack([px[k] + 0.05 * nx[k], py[k] + 0.05 * ny[k], pz[k]], axis=1)
-    k = k[~scene.blocked(p_off, u[q[k]])]
+    i = two[k]
+    p_off = np.stack([px[i] + 0.05 * nx[i], py[i] + 0.05 * ny[i], pz[k]], axis=1)
+    k = k[~scene.blocked(p_off, u[q[i]])]
     if k.size == 0:
         return found, excess, loss
-    ex = dist[k] - ((px[k] - ant[q[k], 0]) * u[q[k], 0] + (py[k] - ant[q[k], 1]) * u[q[k], 1]
-                    + (pz[k] - ant[q[k], 2]) * u[q[k], 2])
-    order = np.lexsort((ex, lobe[k], q[k]))  # per query: least loss, then shortest
+    i = two[k]
+    # Excess over the direct path: |a - P| - (P - a) . u = dist + v . u.
+    ex = dist[k] + vx[i] * ux[i] + vy[i] * uy[i] + vz[k] * uz[i]
+    order = np.lexsort((ex, lobe[k], q[i]))  # per query: least loss, then shortest
     k, ex = k[order], ex[order]
+    qk = q[two[k]]
     first = np.ones(k.size, bool)
-    first[1:] = q[k][1:] != q[k][:-1]
-    found[q[k][first]] = True
-    excess[q[k][first]] = ex[first]
-    loss[q[k][first]] = lobe[k][first]
+    first[1:] = qk[1:] != qk[:-1]
+    found[qk[first]] = True
+    excess[qk[first]] = ex[first]
+    loss[qk[first]] = lobe[k][first]
     return found, excess, loss
 
 
