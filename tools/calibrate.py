@@ -33,12 +33,15 @@ from virtualgps.calibration import (
     CALIBRATION_TLE,
     DEFAULT_SEEDS,
     Row,
+    blocked_pattern,
     compare,
     m241_setup,
     mt3339_setup,
     replay_epochs,
     sim_calibration_stats,
+    waypoint_sky,
 )
+from virtualgps.config import BUNDLED_SCENES_DIR
 from virtualgps.ephemeris import load_tle
 from virtualgps.metrics import (
     autocorrelation,
@@ -56,9 +59,13 @@ from virtualgps.reallogs import (
     read_mtk_logger_csv,
     real_calibration_stats,
 )
+from virtualgps.scene import load_scene
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 START, END = "<!-- calibration:start -->", "<!-- calibration:end -->"
+WP_START, WP_END = "<!-- waypoints:start -->", "<!-- waypoints:end -->"
+# The phone's tracking sensitivity: it reports SNR down to 12 dB-Hz (an MTK stops at ~14).
+PHONE_TRACKING = {"cn0_tracking": {"acq_dbhz": 12.0, "track_dbhz": 9.0}}
 LOG_NAMES = {"mt3339_static": "MT3339 static hour", "m241_moving": "M-241 car track, moving"}
 
 
@@ -88,13 +95,39 @@ def markdown(rows: list[Row], n_seeds: int, command: str) -> str:
     return "\n".join(out)
 
 
-def rewrite_readme(path: Path, table: str) -> None:
-    """Put ``table`` between the calibration markers of ``path`` (which must hold them)."""
+def rewrite_readme(path: Path, table: str, start: str = START, end: str = END) -> None:
+    """Put ``table`` between the ``start`` and ``end`` markers of ``path`` (which must hold
+    them)."""
     text = path.read_text()
-    pattern = re.compile(re.escape(START) + r".*?" + re.escape(END), re.S)
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
     if not pattern.search(text):
-        raise SystemExit(f"{path}: no {START} ... {END} block to rewrite")
-    path.write_text(pattern.sub(lambda _: f"{START}\n{table}\n{END}", text))
+        raise SystemExit(f"{path}: no {start} ... {end} block to rewrite")
+    path.write_text(pattern.sub(lambda _: f"{start}\n{table}\n{end}", text))
+
+
+def waypoint_table(profile_name: str, config: str | None, data: Path) -> str:
+    """Satellites whose direct path crosses a building at the Magdeburg waypoints: the phone's
+    logs against the profile (with and without ``nlos``, and with the phone's sensitivity)."""
+    scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
+    runs = [("phone (real logs)", {}, "real"),
+            (profile_name, {}, "sim"),
+            (f"{profile_name}, nlos off", {"nlos": {"enabled": False}}, "sim"),
+            (f"{profile_name}, the phone's tracking sensitivity", PHONE_TRACKING, "sim")]
+    out = ["| receiver | building-crossing satellite-epochs tracked | clear ones tracked "
+           "| tracked crossing ones weaker by (dB, per PRN) |", "|---|---|---|---|"]
+    skies: dict[str, object] = {}
+    for name, over, which in runs:
+        if repr(over) not in skies:
+            skies[repr(over)] = waypoint_sky(
+                load_profile(profile_name, over, overrides_path=config), data, scene)
+        p = blocked_pattern(skies[repr(over)], which)
+        weaker = "-" if not np.isfinite(p["weaker_db"]) else f"{p['weaker_db']:.1f}"
+        out.append(f"| {name} | {p['tracked_blocked']:.0%} | {p['tracked_clear']:.0%} "
+                   f"| {weaker} |")
+    out.append("")
+    out.append(f"{int(p['n_blocked'])} building-crossing satellite-epochs above 5 deg at markers "
+               "5-18; made by `python tools/calibrate.py`.")
+    return "\n".join(out)
 
 
 def _errors_h_m(ep) -> tuple[np.ndarray, np.ndarray]:
@@ -181,9 +214,13 @@ def main(argv: list[str] | None = None) -> int:
     ) + (f" --seeds {args.seeds}" if args.seeds != len(DEFAULT_SEEDS) else "")
     table = markdown(rows, args.seeds, command)
     print(table)
+    waypoints = waypoint_table(args.profile, args.config, args.data)
+    print()
+    print(waypoints)
     if args.readme:
         rewrite_readme(args.readme, table)
-        print(f"wrote the table into {args.readme}", file=sys.stderr)
+        rewrite_readme(args.readme, waypoints, WP_START, WP_END)
+        print(f"wrote the tables into {args.readme}", file=sys.stderr)
     if args.plot:
         plot(profile, args.data, args.plot)
         print(f"wrote {args.plot}", file=sys.stderr)
