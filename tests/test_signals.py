@@ -128,25 +128,34 @@ f 13 14 15 16
 """
 
 
-@pytest.fixture(scope="module")
-def two_walls(tmp_path_factory):
+def _walls_scene(tmp_path_factory, name: str, obj: str):
+    """A scene of the given OBJ text with east/north/up axes near Magdeburg."""
     from virtualgps.scene import load_scene
 
-    d = tmp_path_factory.mktemp("two-walls")
-    (d / "walls.obj").write_text(TWO_WALLS_OBJ)
+    d = tmp_path_factory.mktemp(name)
+    (d / "walls.obj").write_text(obj)
     (d / "scene.toml").write_text(
         'mesh = "walls.obj"\n[georef]\nlat_deg = 52.14\nlon_deg = 11.64\nalt_hae_m = 100.0\n'
         '[axes]\neast = "+x"\nnorth = "+y"\nup = "+z"\n')
     return load_scene(d)
 
 
-def test_nlos_excess_path_equals_the_image_method(two_walls):
-    from virtualgps import geodesy
+def _facades(scene):
     from virtualgps.scene import CLASS_OCCLUDER
 
-    sel = two_walls.face_class == CLASS_OCCLUDER
-    facades = signals.Facades(two_walls.vertices_enu_m, two_walls.faces[sel],
-                              two_walls.face_object[sel])
+    sel = scene.face_class == CLASS_OCCLUDER
+    return signals.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
+
+
+@pytest.fixture(scope="module")
+def two_walls(tmp_path_factory):
+    return _walls_scene(tmp_path_factory, "two-walls", TWO_WALLS_OBJ)
+
+
+def test_nlos_excess_path_equals_the_image_method(two_walls):
+    from virtualgps import geodesy
+
+    facades = _facades(two_walls)
     antenna = np.array([[3.0, 10.0, 1.5]])
     el = 30.0
     u = geodesy.azel_to_enu_unit(180.0, el)[None, :]
@@ -219,21 +228,7 @@ NARROW_OBJ = TWO_WALLS_OBJ.replace("v -50 20 ", "v -5 20 ").replace("v 50 20 ", 
 
 @pytest.fixture(scope="module")
 def narrow_reflector(tmp_path_factory):
-    from virtualgps.scene import load_scene
-
-    d = tmp_path_factory.mktemp("narrow")
-    (d / "walls.obj").write_text(NARROW_OBJ)
-    (d / "scene.toml").write_text(
-        'mesh = "walls.obj"\n[georef]\nlat_deg = 52.14\nlon_deg = 11.64\nalt_hae_m = 100.0\n'
-        '[axes]\neast = "+x"\nnorth = "+y"\nup = "+z"\n')
-    return load_scene(d)
-
-
-def _facades(scene):
-    from virtualgps.scene import CLASS_OCCLUDER
-
-    sel = scene.face_class == CLASS_OCCLUDER
-    return signals.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
+    return _walls_scene(tmp_path_factory, "narrow", NARROW_OBJ)
 
 
 def _scatter_expect(a, u, p, alpha):
@@ -368,11 +363,7 @@ def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
 
 
 def test_wall_distance_is_to_the_nearest_footprint_above_the_antenna(two_walls):
-    from virtualgps.scene import CLASS_OCCLUDER
-
-    sel = two_walls.face_class == CLASS_OCCLUDER
-    facades = signals.Facades(two_walls.vertices_enu_m, two_walls.faces[sel],
-                              two_walls.face_object[sel])
+    facades = _facades(two_walls)
     ant = np.array([
         [3.0, 10.0, 1.5],  # between the walls: A's north face at 0.5 is 9.5 m away
         [3.0, 10.0, 20.0],  # above A (12 m high): B's south face at 20, 10 m away
