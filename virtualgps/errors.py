@@ -157,7 +157,7 @@ def gauss_markov(
     x : (n_t, m) float, the process at each epoch (x[-1] is the new state)
     """
     phi = np.exp(-np.asarray(dt_s, dtype=float) / tau_s)[:, None]  # (n_t, 1)
-    drive = np.broadcast_to(sigma, z.shape) * np.sqrt(1.0 - phi**2) * z
+    drive = sigma * np.sqrt(1.0 - phi**2) * z  # (n_t, n)
     prev = np.asarray(x0, dtype=float)
     x = np.empty_like(drive)
     if drive.shape[0] > 8 and np.all(phi[1:] == phi[1]):

@@ -814,11 +814,9 @@ def _gsv_scalar(fixes: Fixes, fmt: NmeaFormat, i: int, prn: list[int]) -> list[s
     az = np.asarray(fixes.az_deg[i], dtype=np.float64).tolist()
     cn0 = np.asarray(fixes.cn0_dbhz[i], dtype=np.float64).tolist()
 
-    def key(j: int) -> tuple:
-        e = el[j]
-        return (not in_view[j], math.isnan(e), -(0.0 if math.isnan(e) else e))
-
-    order = sorted(range(len(prn)), key=key)  # stable: ties in column order
+    # (keys built in one pass: a key function called per satellite costs more)
+    keys = [(not v, e != e, -(0.0 if e != e else e)) for v, e in zip(in_view, el, strict=True)]
+    order = sorted(range(len(prn)), key=keys.__getitem__)  # stable: ties in column order
     n_view = min(sum(in_view), fmt.gsv_max_sats)
     if n_view == 0:
         return [fmt.talker + "GSV,1,1,00"]
@@ -868,7 +866,7 @@ def render_batch(
     before the fix is valid; a receiver model may hold its last fix that way); NaN positions
     print as the style's no-fix placeholders. DOPs are clipped to 99.
     """
-    if sigma_m is None:
+    if sigma_m is None and "GST" in fmt.sentences:  # (only GST prints it)
         sigma_m = fixes.gst_sigma_m()  # the receiver's own error estimate, where it has one
     lo, hi, _ = slice(start, stop).indices(len(fixes))
     if hi - lo < _SMALL:

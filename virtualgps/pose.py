@@ -359,44 +359,34 @@ def interpolate(
     if n == 0:
         return pos, vel, valid
     tt, p, v = track.t_unix_s, track.xyz, track.vel_enu_mps
-    # Coordinate rates per m/s of velocity: 1 for ENU tracks; for geodetic tracks (lat, lon, h)
-    # rates per m/s (north, east, up): degrees over the radii of curvature at the pose's height.
-    if track.frame == FRAME_GEODETIC:
-        m_m, n_m = geodesy.radii_of_curvature_m(p[:, 0])
-        coslat = np.maximum(np.cos(np.radians(p[:, 0])), 1e-12)
-        k = np.stack(
-            [
-                np.degrees(1.0 / (m_m + p[:, 2])),
-                np.degrees(1.0 / ((n_m + p[:, 2]) * coslat)),
-                np.ones(n),
-            ],
-            axis=-1,
-        )
-    else:
-        k = np.ones((n, 3))
     finite = np.isfinite(t)
     i0 = np.searchsorted(tt, np.where(finite, t, -np.inf), side="right") - 1
-
-    # Segment finite differences (n-1, 3), in native rates and in ENU m/s.
-    dt_seg = np.diff(tt)
-    fd = np.diff(p, axis=0) / dt_seg[:, None] if n > 1 else np.zeros((0, 3))
-    fd_enu = _native_to_enu(fd, k[:-1], track.frame)
+    inside = finite & (i0 >= 0) & (i0 < n - 1)
+    j = np.flatnonzero(inside)
+    # Only the segments the epochs fall in, and the last one (the live loop asks for one epoch
+    # of a lap or a history of thousands of poses: per-pose work there would dominate).
+    a = i0[j]
+    seg = np.append(a, n - 2) if n > 1 else a
+    # Coordinate rates per m/s of velocity: 1 for ENU tracks; for geodetic tracks (lat, lon, h)
+    # rates per m/s (north, east, up): degrees over the radii of curvature at the pose's height.
+    k_seg, k_last = _rate_per_mps(p[seg], track.frame), _rate_per_mps(p[-1:], track.frame)
+    # Segment finite differences (len(seg), 3), in native rates and in ENU m/s.
+    dt_seg = tt[seg + 1] - tt[seg]
+    fd = (p[seg + 1] - p[seg]) / dt_seg[:, None]
+    fd_enu = _native_to_enu(fd, k_seg, track.frame)
     # The last pose's own velocity, else the last segment's finite difference, else 0 (hold).
     last_v = v[-1].copy()
     if n > 1:
         last_v = np.where(np.isnan(last_v), fd_enu[-1], last_v)
     last_v = np.where(np.isnan(last_v), 0.0, last_v)
-    last_rate = _enu_to_native(last_v[None, :], k[-1:], track.frame)[0]
+    last_rate = _enu_to_native(last_v[None, :], k_last, track.frame)[0]
 
-    inside = finite & (i0 >= 0) & (i0 < n - 1)
-    j = np.flatnonzero(inside)
     if j.size:
-        a = i0[j]
-        dt = dt_seg[a]
+        dt = dt_seg[: j.size]
         w = ((t[j] - tt[a]) / dt)[:, None]
         pos[j] = p[a] + w * (p[a + 1] - p[a])
         v_i = v[a] + w * (v[a + 1] - v[a])
-        vel[j] = np.where(np.isnan(v_i), fd_enu[a], v_i)
+        vel[j] = np.where(np.isnan(v_i), fd_enu[: j.size], v_i)
         valid[j] = (dt <= max_gap_s) | (t[j] == tt[a])
 
     after = finite & (i0 == n - 1)
@@ -410,6 +400,28 @@ def interpolate(
     pos[~valid] = np.nan
     vel[~valid] = np.nan
     return pos, vel, valid
+
+
+def _rate_per_mps(xyz: np.ndarray, frame: str) -> np.ndarray:
+    """Coordinate rates per m/s of velocity at poses ``xyz`` (m, 3) of the track's frame.
+
+    Returns
+    -------
+    k : (m, 3) float: ones for ENU tracks; for geodetic ones (lat, lon, h), degrees per metre
+        north, degrees per metre east (the radii of curvature at the pose's height) and 1
+    """
+    if frame != FRAME_GEODETIC:
+        return np.ones((len(xyz), 3))
+    m_m, n_m = geodesy.radii_of_curvature_m(xyz[:, 0])
+    coslat = np.maximum(np.cos(np.radians(xyz[:, 0])), 1e-12)
+    return np.stack(
+        [
+            np.degrees(1.0 / (m_m + xyz[:, 2])),
+            np.degrees(1.0 / ((n_m + xyz[:, 2]) * coslat)),
+            np.ones(len(xyz)),
+        ],
+        axis=-1,
+    )
 
 
 def _native_to_enu(rate: np.ndarray, k: np.ndarray, frame: str) -> np.ndarray:

@@ -15,6 +15,7 @@ DESIGN section 6 are switched on and set by the profile.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -408,7 +409,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         # axes differ from the antenna's local ENU by the Earth's curvature (~0.009 deg per km).
         idx = np.nonzero(above)
         dirs = u_ecef[idx] @ rx.origin_rot.T
-        origins = np.broadcast_to(ant[..., None, :], above.shape + (3,))[idx]
+        origins = ant[idx[:-1]]  # (the antenna of each ray's epoch)
         foliage_blocks = rx.profile.sky.foliage == "block" and not rx.profile.foliage.enabled
         hit = rx.scene.blocked(origins, dirs, cls="solid" if foliage_blocks else "occluder")
         if rx.profile.foliage.enabled:
@@ -429,7 +430,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     if rx.profile.nlos.enabled and rx.facades is not None and blocked.any():
         idx = np.nonzero(blocked)
         dirs = u_ecef[idx] @ rx.origin_rot.T
-        origins = np.broadcast_to(ant[..., None, :], blocked.shape + (3,))[idx]
+        origins = ant[idx[:-1]]
         nl = rx.profile.nlos
         if nl.scattering:  # (a specular point on a wall is the lobe's centre: loss 0)
             found, ex, lobe = signals.scattered_paths(
@@ -609,7 +610,7 @@ def position_errors(
         width = n_sat + (n_sat % 2) if ce.domain == "range" else 4
         z = errors.normals_from_uniforms(u[:, c : c + width])
         if ce.domain == "range":
-            el_shape = sigma_i / errors.uere_sigma_m(np.array(90.0), *_uere_args(prof))
+            el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
             x0 = _gm_start(state, n_sat)
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
             gm_state = gm[-1]
@@ -719,7 +720,10 @@ def tracked_cn0(
     cn0 = cn0 - sky.nlos_loss_db - sky.foliage_db
     cn0 = np.where(above & (~sky.blocked | sky.nlos), cn0, -np.inf)
     finite_dt = dt_s[np.isfinite(dt_s)]
-    step_s = float(np.median(finite_dt)) if finite_dt.size else 1.0 / prof.rate_hz
+    if finite_dt.size > 1:
+        step_s = float(np.median(finite_dt))
+    else:  # (the live loop's one epoch: np.median costs more than the rest of the tracking)
+        step_s = float(finite_dt[0]) if finite_dt.size else 1.0 / prof.rate_hz
     reacq = max(1, int(np.ceil(ct.reacq_s / step_s - 1e-9)))
     tracked0 = state.tracked if state.tracked is not None else np.zeros(n_sat, bool)
     run0 = state.acq_run if state.acq_run is not None else np.zeros(n_sat, int)
@@ -854,6 +858,13 @@ def _uere_args(prof: Profile) -> tuple[float, ...]:
             d.multipath_a_m, d.multipath_b_m)
 
 
+@functools.lru_cache(maxsize=64)
+def _uere_zenith_m(uere_args: tuple[float, ...]) -> np.ndarray:
+    """The UERE sigma at the zenith, metres (a 0-d array), for :func:`_uere_args`' budget
+    (cached: a profile's budget is fixed, and the live loop runs one epoch per call)."""
+    return errors.uere_sigma_m(np.array(90.0), *uere_args)
+
+
 def hold_altitude(
     alt_hae_m: np.ndarray, fix_3d: np.ndarray, fix_2d: np.ndarray, last_alt_hae_m: float
 ) -> tuple[np.ndarray, float]:
@@ -917,7 +928,7 @@ def simulate(
     # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
     # only; the paper's model uses the first two).
     u = rng.random((n_t, layout["total"]))
-    dt_s = np.diff(t, prepend=state.last_t_unix_s)
+    dt_s = t - np.concatenate(([state.last_t_unix_s], t[:-1]))  # (np.diff: slow on one epoch)
     dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
     if prof.cn0_tracking.enabled:
         cn0, tracked, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)

@@ -80,6 +80,10 @@ def track(
     run : (m,) int, the run after the last row (the next call's ``run0``)
     """
     c = np.where(np.isnan(cn0_dbhz), -np.inf, cn0_dbhz)  # (nan_to_num: slow on tiny arrays)
+    if c.shape[0] == 1:  # the live loop's one epoch: what the running-index tricks reduce to
+        run = np.where(c >= acq_dbhz, run0 + 1, 0)
+        event = np.where(run >= reacq_epochs, 1, np.where(c < track_dbhz, -1, 0))
+        return np.where(event != 0, event > 0, tracked0), run[-1]
     run = run_length(c >= acq_dbhz, run0)
     # Events: +1 acquire, -1 lose; otherwise the state carries on (hysteresis band).
     event = np.where(run >= reacq_epochs, 1, np.where(c < track_dbhz, -1, 0))
@@ -584,7 +588,10 @@ def scattered_paths(
     cell = np.floor(ant[:, :2] / CELL_M).astype(np.int64)
     band = np.floor(ant[:, 2] / HEIGHT_BAND_M).astype(np.int64)
     key = (cell[:, 0] * (1 << 24) + cell[:, 1]) * (1 << 16) + band  # unique within +-2^23 cells
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    if (key == key[0]).all():  # one cell and band (the live loop's epoch): no grouping to do
+        first, inverse = np.zeros(1, np.intp), np.zeros(m, np.intp)
+    else:
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
     near = facades._near_walls(cell[first].astype(float), (band[first] * HEIGHT_BAND_M).tolist(),
                                max_dist_m)
     lists = [w.planes[:max_walls] for w in near]
@@ -621,7 +628,7 @@ def scattered_paths(
     # Two points per wall: the one nearest the specular point, and the one below the wall's
     # top edge, which the satellite still sees over the buildings in front of it more often.
     pz = np.concatenate([np.clip(az + uz * t, lo_z + z_in, hi_z - z_in), hi_z - z_in])
-    two = np.r_[np.arange(q.size), np.arange(q.size)]
+    two = np.tile(np.arange(q.size), 2)
     vz = az[two] - pz
     h2 = vx * vx + vy * vy
     dist = np.sqrt(h2[two] + vz * vz)
@@ -631,13 +638,16 @@ def scattered_paths(
     if k.size == 0:
         return found, excess, loss
     i = two[k]
-    to_p = -np.stack([vx[i], vy[i], vz[k]], axis=1) / dist[k, None]
+    to_p = np.empty((k.size, 3))  # (filled by column: np.stack costs more on a few rows)
+    to_p[:, 0], to_p[:, 1], to_p[:, 2] = vx[i], vy[i], vz[k]
+    to_p = -to_p / dist[k, None]
     # Leg 1: the first occluder from the antenna towards P is the wall at P.
     hit = scene.hit_distance_m(ant[q[i]], to_p)
     k = k[np.abs(hit - dist[k]) < 0.02 + 1e-4 * dist[k]]
     # Leg 2: open sky from P (nudged off the wall) to the satellite.
     i = two[k]
-    p_off = np.stack([px[i] + 0.05 * nx[i], py[i] + 0.05 * ny[i], pz[k]], axis=1)
+    p_off = np.empty((k.size, 3))
+    p_off[:, 0], p_off[:, 1], p_off[:, 2] = px[i] + 0.05 * nx[i], py[i] + 0.05 * ny[i], pz[k]
     k = k[~scene.blocked(p_off, u[q[i]])]
     if k.size == 0:
         return found, excess, loss
