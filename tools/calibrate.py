@@ -35,6 +35,7 @@ from virtualgps.calibration import (
     Row,
     blocked_pattern,
     compare,
+    days_to_epoch_s,
     m241_setup,
     mt3339_setup,
     replay_epochs,
@@ -165,7 +166,7 @@ def plot(profile, data: Path, path: Path) -> None:
         h = np.sort(ep.hdop[(ep.quality > 0) & np.isfinite(ep.hdop)])
         ax[1, 1].plot(h, np.linspace(0, 1, h.size), style, label=f"{name}, static")
     georef, trk, speed = m241_setup(data)
-    shift = 86400.0 * round((eph.epoch_center_unix_s - trk.t_unix_s[0]) / 86400.0)
+    shift = days_to_epoch_s(eph, float(trk.t_unix_s[0]))
     sim = replay_epochs(profile, eph, georef, replace(trk, t_unix_s=trk.t_unix_s + shift), 0)
     real_m = read_mtk_logger_csv(data / M241_TRACK_CSV)
     for h, name, style in (

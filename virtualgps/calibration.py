@@ -170,6 +170,12 @@ def m241_setup(root: Path) -> tuple[Georef, pose.PoseTrack, np.ndarray]:
     return Georef(*(float(v) for v in xyz[0])), track, trk.speed_mps[ok]
 
 
+def days_to_epoch_s(ephemeris: Constellation, t_unix_s: float) -> float:
+    """Whole days (in seconds) from ``t_unix_s`` to the TLE set's epoch: a shift that keeps the
+    UTC time of day (the M-241's 2008 track replayed near a 2017 set)."""
+    return 86400.0 * round((ephemeris.epoch_center_unix_s - t_unix_s) / 86400.0)
+
+
 def sim_calibration_stats(
     profile: Profile,
     shared_data_dir: str | Path,
@@ -204,8 +210,7 @@ def sim_calibration_stats(
 
     georef, track, speed = m241_setup(root)
     t = track.t_unix_s
-    # Whole days from the log's day to the TLE set's day keep the UTC time of day.
-    day_shift_s = 86400.0 * round((ephemeris.epoch_center_unix_s - t[0]) / 86400.0)
+    day_shift_s = days_to_epoch_s(ephemeris, float(t[0]))
     for i, seed in enumerate(seeds):
         shift = day_shift_s + 86400.0 * M241_START_DAYS[i % len(M241_START_DAYS)]
         shifted = replace(track, t_unix_s=t + shift)
