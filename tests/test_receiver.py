@@ -25,14 +25,16 @@ GEOREF = Georef(52.14, 11.64, 100.0)
 
 
 class FixedSky:
-    """Satellites fixed in the sky of GEOREF's origin at given az/el, 20,000 km away."""
+    """Satellites fixed in the sky of a georeference's origin (GEOREF unless given) at given
+    az/el, 20,000 km away."""
 
-    def __init__(self, az_deg, el_deg, prn=None):
+    def __init__(self, az_deg, el_deg, prn=None, georef=GEOREF):
         self.az_deg = np.asarray(az_deg, float)
         self.el_deg = np.asarray(el_deg, float)
         self.prn = np.asarray(prn if prn is not None else np.arange(1, len(self.az_deg) + 1))
         enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
-        self.ecef = geodesy.enu_to_ecef(enu, GEOREF.lat0_deg, GEOREF.lon0_deg, GEOREF.alt0_hae_m)
+        self.ecef = geodesy.enu_to_ecef(enu, georef.lat0_deg, georef.lon0_deg,
+                                        georef.alt0_hae_m)
 
     def sat_ecef_m(self, t_unix_s):
         t = np.atleast_1d(t_unix_s)
@@ -639,3 +641,23 @@ def test_long_batches_hold_only_satellites_well_below_the_horizon():
         assert el_held[held].max() < 0.0  # ... and stay below the horizon where held
     # Short batches (the live loop's epoch) are exact throughout.
     np.testing.assert_array_equal(sat_ecef_near_m(eph, t[:10], ant[:, :10]), exact[:10])
+
+
+def test_first_order_recursion_batch_equals_its_epochs_to_the_bit():
+    from virtualgps.errors import first_order_recursion
+
+    rng = np.random.default_rng(4)
+    u = rng.standard_normal((500, 3))
+    p = np.full(500, 0.97)
+    p[0] = 0.0  # the very first epoch's infinite step
+    y0 = rng.standard_normal(3)
+    batch = first_order_recursion(y0, p, u)  # the IIR filter (constant coefficient)
+    prev, one = y0, []
+    for k in range(500):  # the live loop: one epoch per call, the plain recursion
+        prev = first_order_recursion(prev, p[k : k + 1], u[k : k + 1])[0]
+        one.append(prev)
+    np.testing.assert_array_equal(batch, np.array(one))
+    # Closed form: y_k = sum_j p^(k - j) u_j from the first epoch on (y0 weighs p[0] = 0).
+    k = np.arange(500)
+    w = np.tril(0.97 ** (k[:, None] - k[None, :]).clip(0))
+    np.testing.assert_allclose(batch, w @ u, rtol=0, atol=1e-9)

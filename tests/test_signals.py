@@ -181,14 +181,8 @@ def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls)
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 
-    class Sky(FixedSky):  # satellites fixed in the sky of this scene's origin
-        def __init__(self, az, el):
-            super().__init__(az, el)
-            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
-            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
-
     # One satellite due south at 30 deg (blocked by A, reflected by B), four clear ones high.
-    sky = Sky([180.0, 0.0, 90.0, 200.0, 300.0], [30.0, 80.0, 70.0, 75.0, 72.0])
+    sky = FixedSky([180.0, 0.0, 90.0, 200.0, 300.0], [30.0, 80.0, 70.0, 75.0, 72.0], georef=g)
     tiny = {k: 0.0 for k in ("iono_zenith_m", "tropo_zenith_m", "rx_noise_m", "multipath_a_m",
                              "multipath_b_m")}
     base = {"cn0_tracking": {"enabled": True, "fade_sigma_db": 0.0, "acq_dbhz": 20.0,
@@ -290,18 +284,11 @@ def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
 
 
 def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
-    from virtualgps import geodesy
     from virtualgps.receiver import Georef, compute_sky, expected_cn0_dbhz
 
     g = Georef(narrow_reflector.lat_deg, narrow_reflector.lon_deg, narrow_reflector.alt_hae_m)
 
-    class Sky(FixedSky):
-        def __init__(self, az, el):
-            super().__init__(az, el)
-            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
-            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
-
-    sky = Sky([160.0, 0.0], [30.0, 80.0])
+    sky = FixedSky([160.0, 0.0], [30.0, 80.0], georef=g)
     ant = np.array([[3.0, 10.0, 1.5]])
     cn0 = {"enabled": True, "cn0_zenith_dbhz": 45.0, "horizon_loss_db": 10.0}
     out = {}
@@ -344,13 +331,7 @@ def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
 
     g = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
 
-    class Sky(FixedSky):
-        def __init__(self, az, el):
-            super().__init__(az, el)
-            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
-            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
-
-    sky = Sky([0.0, 180.0], [el, 60.0])
+    sky = FixedSky([0.0, 180.0], [el, 60.0], georef=g)
     prof = load_profile("ideal", {"foliage": {"enabled": True, "db_per_m": 1.5, "max_db": 20.0}})
     out = compute_sky(Receiver(prof, sky, scene, g), np.array([1.49e9]), origin)
     np.testing.assert_allclose(out.foliage_db[0], [1.5 * 6.0 / np.cos(np.radians(el)), 0.0],
@@ -377,18 +358,12 @@ def test_wall_distance_is_to_the_nearest_footprint_above_the_antenna(two_walls):
 
 
 def test_multipath_in_the_receiver_acts_near_a_wall_and_not_far_from_it(two_walls):
-    from virtualgps import geodesy
     from virtualgps.receiver import Georef
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 
-    class Sky(FixedSky):
-        def __init__(self, az, el):
-            super().__init__(az, el)
-            enu = geodesy.azel_to_enu_unit(self.az_deg, self.el_deg) * 20_000e3
-            self.ecef = geodesy.enu_to_ecef(enu, g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
-
-    sky = Sky([0.0, 90.0, 200.0, 300.0, 30.0], [80.0, 70.0, 75.0, 72.0, 60.0])  # all clear
+    sky = FixedSky([0.0, 90.0, 200.0, 300.0, 30.0], [80.0, 70.0, 75.0, 72.0, 60.0],
+                   georef=g)  # all clear
     # "Off" is the effect with sigma_m = 0: the same row of uniforms per epoch (switching the
     # effect on widens the row, which moves every later epoch's draws).
     base = {"dop_error": {"enabled": True}}

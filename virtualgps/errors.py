@@ -156,24 +156,42 @@ def gauss_markov(
     -------
     x : (n_t, m) float, the process at each epoch (x[-1] is the new state)
     """
-    phi = np.exp(-np.asarray(dt_s, dtype=float) / tau_s)[:, None]  # (n_t, 1)
-    drive = sigma * np.sqrt(1.0 - phi**2) * z  # (n_t, n)
-    prev = np.asarray(x0, dtype=float)
-    x = np.empty_like(drive)
-    if drive.shape[0] > 8 and np.all(phi[1:] == phi[1]):
-        # Constant step after the first (every batch on the epoch grid; the very first epoch
-        # has an infinite one): a first-order IIR filter, in C, computing the same sums.
+    phi = np.exp(-np.asarray(dt_s, dtype=float) / tau_s)
+    drive = sigma * np.sqrt(1.0 - phi[:, None] ** 2) * z  # (n_t, n)
+    return first_order_recursion(np.asarray(x0, dtype=float), phi, drive)
+
+
+def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """y_k = p_k y_(k-1) + u_k over epochs, for several series at once.
+
+    Parameters
+    ----------
+    y0 : (m,) float, the value before the first epoch
+    p : (n_t,) float, each epoch's coefficient
+    u : (n_t, m) float, each epoch's input
+
+    Returns
+    -------
+    y : (n_t, m) float
+    """
+    y = np.empty_like(u)
+    if u.shape[0] > 8 and np.all(p[2:] == p[1]):
+        # Constant coefficient after the first epoch (every batch on the epoch grid; the very
+        # first epoch has an infinite step): a first-order IIR filter, in C, computing the same
+        # products and sums in the same order as the loop below, so a batch equals its epochs
+        # one by one to the bit.
         from scipy.signal import lfilter
 
-        x[0] = phi[0] * prev + drive[0]
-        p = float(phi[1, 0])
-        x[1:] = lfilter([1.0], [1.0, -p], drive[1:], axis=0, zi=(p * x[0])[None, :])[0]
-        return x
+        y[0] = p[0] * y0 + u[0]
+        c = float(p[1])
+        y[1:] = lfilter([1.0], [1.0, -c], u[1:], axis=0, zi=(c * y[0])[None, :])[0]
+        return y
     # A few epochs (the live loop) or variable steps: the plain recursion is cheaper.
-    for k in range(x.shape[0]):
-        prev = phi[k] * prev + drive[k]
-        x[k] = prev
-    return x
+    prev = y0
+    for k in range(u.shape[0]):
+        prev = p[k] * prev + u[k]
+        y[k] = prev
+    return y
 
 
 def wls_fix(

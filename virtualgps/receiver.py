@@ -663,12 +663,12 @@ def position_errors(
         z = errors.normals_from_uniforms(u[:, c : c + width])
         if ce.domain == "range":
             el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
-            x0 = _gm_start(state, n_sat)
+            x0 = _gm_start(state.gm_m, n_sat)
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
             gm_state = gm[-1]
             corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
         else:
-            x0 = _gm_start(state, 3)
+            x0 = _gm_start(state.gm_m, 3)
             sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
             gm_state = gm[-1]
@@ -687,8 +687,7 @@ def position_errors(
         if mp.enabled:
             c = layout["multipath"]
             z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
-            x0 = state.mp_m if state.mp_m is not None and state.mp_m.shape == (n_sat,) else \
-                np.zeros(n_sat)  # (zeros: the first epoch's infinite step draws it afresh)
+            x0 = _gm_start(state.mp_m, n_sat)
             # Unit processes, one per satellite, running whether or not it is seen; the sigma
             # follows the elevation and the antenna's distance to the walls epoch by epoch.
             x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z)
@@ -827,19 +826,10 @@ def nav_filter(
             y = a[start] * filt[start] + keep[start] * y
             filt[start] = y
         k = start + 1
-        if stop - k > 8 and np.all(a[k + 1 : stop] == a[k]):
-            # Constant step (every batch on the epoch grid): a first-order IIR filter in C
-            # computing the same products and sums as the loop below (y = z + a x, z = keep y).
-            from scipy.signal import lfilter
-
-            filt[k:stop] = lfilter(
-                [a[k]], [1.0, -keep[k]], filt[k:stop], axis=0, zi=(keep[k] * y)[None, :]
-            )[0]
+        if stop > k:
+            filt[k:stop] = errors.first_order_recursion(y, keep[k:stop],
+                                                        a[k:stop, None] * filt[k:stop])
             y = filt[stop - 1]
-            continue
-        for j in range(k, stop):  # a short run or variable steps
-            y = a[j] * filt[j] + keep[j] * y
-            filt[j] = y
     if fix and not fix[-1]:  # the next epoch with a fix restarts
         y = None
     return filt, y
@@ -895,11 +885,12 @@ def output_stage(
     return out - truth_enu_m, update
 
 
-def _gm_start(state: ReceiverState, n: int) -> np.ndarray:
-    """The Gauss-Markov state to continue from (zeros at the start: the first epoch's infinite
-    step then draws it from the stationary distribution)."""
-    if state.gm_m is not None and state.gm_m.shape == (n,):
-        return state.gm_m
+def _gm_start(carried: np.ndarray | None, n: int) -> np.ndarray:
+    """The (n,) Gauss-Markov state to continue from: the one carried in the receiver state,
+    or zeros at the start (the first epoch's infinite step then draws it from the stationary
+    distribution)."""
+    if carried is not None and carried.shape == (n,):
+        return carried
     return np.zeros(n)
 
 

@@ -106,6 +106,31 @@ SCATTER_WALLS = 16  # walls nearest an antenna's cell that scattered_paths tries
 HEIGHT_BAND_M = 0.5  # wall_dist_m's cell lists leave out walls below the antennas' band
 
 
+def _cell_groups(
+    cell: np.ndarray, band: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group queries by their ``CELL_M`` ground cell (and height band).
+
+    Parameters
+    ----------
+    cell : (m,) + (2,) int64, cell indices east and north (|index| < 2^23: 67,000 km of cells)
+    band : (m,) int64, height band indices (|index| < 2^15), optional
+
+    Returns
+    -------
+    key : (m,) int64, one number per cell (and band)
+    first : (g,) int, the first query of each group
+    inverse : (m,) int, each query's group
+    """
+    key = cell[:, 0] * (1 << 24) + cell[:, 1]
+    if band is not None:
+        key = key * (1 << 16) + band
+    if (key == key[0]).all():  # one group (the live loop's epoch): np.unique costs more
+        return key, np.zeros(1, np.intp), np.zeros(len(key), np.intp)
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    return key, first, inverse
+
+
 @dataclass(frozen=True, eq=False)
 class _NearWalls:
     """One ground cell's walls for :meth:`Facades.wall_dist_m`, nearest to the cell's centre
@@ -247,11 +272,8 @@ class Facades:
         if self.tree is None or m == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         cell = np.floor(xy_m / CELL_M).astype(np.int64)
-        key = cell[:, 0] * (1 << 32) + cell[:, 1]  # unique while |north| < 2^31 cells
-        if (key == key[0]).all():  # one cell (the live loop's epoch): no grouping to do
-            keys, first, inverse = key[:1], np.zeros(1, np.intp), np.zeros(m, np.intp)
-        else:
-            keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        key, first, inverse = _cell_groups(cell)
+        keys = key[first]
         cache = self._cells.setdefault((float(radius_m), float(plane_dist_m)), {})
         key_list = keys.tolist()
         missing = [i for i, k in enumerate(key_list) if k not in cache]
@@ -332,9 +354,7 @@ class Facades:
             head = near[0].head[:, None, :]  # (6, 1, NEAR_WALLS): the same for every antenna
             nxt: float | np.ndarray = near[0].next_dist_m
         else:
-            ci = cell.astype(np.int64)
-            key = ci[:, 0] * (1 << 32) + ci[:, 1]  # as in candidates
-            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+            _, first, inverse = _cell_groups(cell.astype(np.int64))
             z_min = np.full(len(first), np.inf)
             np.minimum.at(z_min, inverse, ant[:, 2])
             near = self._near_walls(cell[first], z_min, max_dist_m)
@@ -518,12 +538,9 @@ def reflections(
     p_off = np.stack([px[idx] + 0.05 * nx[idx], py[idx] + 0.05 * ny[idx], pz[idx]], axis=1)
     idx = idx[~scene.blocked(p_off, sat_dir_enu[q[idx]])]
     ex = 2.0 * d[idx] * un[idx]
-    order = np.lexsort((ex, q[idx]))  # shortest path per query first
-    idx, ex = idx[order], ex[order]
-    first = np.ones(idx.size, bool)
-    first[1:] = q[idx][1:] != q[idx][:-1]
-    found[q[idx][first]] = True
-    excess[q[idx][first]] = ex[first]
+    best = _best_per_query(q[idx], ex)  # the shortest path
+    found[q[idx][best]] = True
+    excess[q[idx][best]] = ex[best]
     return found, excess
 
 
@@ -587,11 +604,7 @@ def scattered_paths(
     # The walls nearest each antenna's ground cell (cached per cell and height band).
     cell = np.floor(ant[:, :2] / CELL_M).astype(np.int64)
     band = np.floor(ant[:, 2] / HEIGHT_BAND_M).astype(np.int64)
-    key = (cell[:, 0] * (1 << 24) + cell[:, 1]) * (1 << 16) + band  # unique within +-2^23 cells
-    if (key == key[0]).all():  # one cell and band (the live loop's epoch): no grouping to do
-        first, inverse = np.zeros(1, np.intp), np.zeros(m, np.intp)
-    else:
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    _, first, inverse = _cell_groups(cell, band)
     near = facades._near_walls(cell[first].astype(float), (band[first] * HEIGHT_BAND_M).tolist(),
                                max_dist_m)
     lists = [w.planes[:max_walls] for w in near]
@@ -654,15 +667,31 @@ def scattered_paths(
     i = two[k]
     # Excess over the direct path: |a - P| - (P - a) . u = dist + v . u.
     ex = dist[k] + vx[i] * ux[i] + vy[i] * uy[i] + vz[k] * uz[i]
-    order = np.lexsort((ex, lobe[k], q[i]))  # per query: least loss, then shortest
-    k, ex = k[order], ex[order]
-    qk = q[two[k]]
-    first = np.ones(k.size, bool)
-    first[1:] = qk[1:] != qk[:-1]
-    found[qk[first]] = True
-    excess[qk[first]] = ex[first]
-    loss[qk[first]] = lobe[k][first]
+    best = _best_per_query(q[i], ex, lobe[k])  # the least loss, then the shortest
+    found[q[i][best]] = True
+    excess[q[i][best]] = ex[best]
+    loss[q[i][best]] = lobe[k][best]
     return found, excess, loss
+
+
+def _best_per_query(query: np.ndarray, *keys: np.ndarray) -> np.ndarray:
+    """The best candidate of each query: the smallest by ``keys``, the last most significant
+    (``np.lexsort``'s order; ties keep the first candidate).
+
+    Parameters
+    ----------
+    query : (k,) int, each candidate's query
+    keys : (k,) arrays, the criteria
+
+    Returns
+    -------
+    best : (n_q,) int, indices into the candidates, one per query that has any
+    """
+    order = np.lexsort((*keys, query))
+    qo = query[order]
+    first = np.ones(order.size, bool)
+    first[1:] = qo[1:] != qo[:-1]
+    return order[first]
 
 
 def _ranges(counts: np.ndarray) -> np.ndarray:
