@@ -2,8 +2,8 @@
 
 The real column is measured on ../shared/data (MT3339 static hour, M-241 car track); the
 simulated one replays the profile where and when each log was recorded and reads its NMEA back
-through the same reader and statistics (virtualgps/calibration.py). Tolerance: +-20 % on the
-median over 8 seeds for every calibrated statistic (virtualgps.calibration.STATISTICS).
+through the same reader and statistics (virtualgps/gap/calibration.py). Tolerance: +-20 % on the
+median over 8 seeds for every calibrated statistic (virtualgps.gap.calibration.STATISTICS).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from virtualgps.calibration import (
+from virtualgps.gap.calibration import (
     STATISTICS,
     Row,
     Statistic,
@@ -24,7 +24,7 @@ from virtualgps.calibration import (
     waypoint_sky,
 )
 from virtualgps.profiles import load_profile
-from virtualgps.reallogs import real_calibration_stats
+from virtualgps.gap.reallogs import real_calibration_stats
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -5,10 +5,10 @@ Usage::
     python tools/calibrate.py [--profile holux-m1000] [--config extra.toml] [--seeds 8]
                               [--data ../shared/data] [--readme README.md] [--plot cal.png]
 
-The real column comes from :func:`virtualgps.reallogs.real_calibration_stats` (also printed by
-tools/real_stats.py), the simulated one from :func:`virtualgps.calibration.sim_calibration_stats`:
+The real column comes from :func:`virtualgps.gap.reallogs.real_calibration_stats` (also printed by
+tools/real_stats.py), the simulated one from :func:`virtualgps.gap.calibration.sim_calibration_stats`:
 the profile replayed where and when each log was recorded, its NMEA read back and summarised
-exactly like the real log's (see virtualgps/calibration.py). The simulated value is the median
+exactly like the real log's (see virtualgps/gap/calibration.py). The simulated value is the median
 over the seeds, with the seeds' range beside it. ``--readme`` rewrites the table between the
 ``<!-- calibration:start -->`` and ``<!-- calibration:end -->`` lines of that file; ``--plot``
 draws the distributions behind the numbers (seed 0 against the real logs). The exit status is
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps.calibration import (
+from virtualgps.gap.calibration import (
     CALIBRATION_TLE,
     DEFAULT_SEEDS,
     Row,
@@ -44,7 +44,7 @@ from virtualgps.calibration import (
 )
 from virtualgps.config import BUNDLED_SCENES_DIR
 from virtualgps.ephemeris import load_tle
-from virtualgps.metrics import (
+from virtualgps.gap.metrics import (
     autocorrelation,
     errors_enu_m,
     horizontal_error_m,
@@ -53,7 +53,7 @@ from virtualgps.metrics import (
 )
 from virtualgps.nmea import read_nmea_epochs
 from virtualgps.profiles import load_profile
-from virtualgps.reallogs import (
+from virtualgps.gap.reallogs import (
     M241_MOVING_MIN_SPEED_MPS,
     M241_TRACK_CSV,
     MT3339_STATIC_LOG,

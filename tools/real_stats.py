@@ -1,13 +1,13 @@
 """Print the "real" column of the holux-m1000 calibration table from the real MTK logs.
 
 Usage: ``python tools/real_stats.py [SHARED_DATA_DIR] [--json]`` (default ``../shared/data``
-beside the clone). Statistics come from :func:`virtualgps.reallogs.real_calibration_stats`
+beside the clone). Statistics come from :func:`virtualgps.gap.reallogs.real_calibration_stats`
 (the same function the calibration script and ``tests/test_metrics.py`` use): the MT3339 static
 hour (mt3339-static/hour_test_1.txt) for error statistics, C/N0 and start-up; the Holux M-241
 car track (mtk-logger/mtk_logger_m241.csv) for satellites and HDOP while moving. The last
 column repeats the facts SOURCES.md states for the MT3339 hour.
 
-How the statistics are defined (see virtualgps/metrics.py):
+How the statistics are defined (see virtualgps/gap/metrics.py):
 - errors are ENU metres about the component-wise median of the fixed positions (no survey);
 - CEP50 / R95: median / 95th percentile of the horizontal error; 1-sigma: standard deviation
   per axis about the mean;
@@ -30,9 +30,9 @@ import json
 import math
 from pathlib import Path
 
-from virtualgps.metrics import summary
+from virtualgps.gap.metrics import summary
 from virtualgps.nmea import read_nmea_epochs
-from virtualgps.reallogs import (
+from virtualgps.gap.reallogs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     MT3339_STATIC_LOG,

@@ -3,7 +3,7 @@
 The simulated column of the ``holux-m1000`` calibration table is made exactly like the real one:
 the receiver is replayed where and when the real log was recorded (the same core and NMEA
 writer as ``virtualgps replay``), its NMEA is read back with the reader the real log goes
-through, and :func:`virtualgps.metrics.summary` computes the same statistics. Integer SNR, the
+through, and :func:`virtualgps.gap.metrics.summary` computes the same statistics. Integer SNR, the
 4-decimal minutes of the position and the 2-decimal HDOP are then rounded alike on both sides.
 
 - MT3339 static hour: the antenna stands at the log's median position from the log's first
@@ -39,10 +39,10 @@ import numpy as np
 
 from virtualgps import geodesy, nmea, pose
 from virtualgps.ephemeris import Constellation, load_tle
-from virtualgps.metrics import median_position, summary
+from virtualgps.gap.metrics import median_position, summary
 from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
 from virtualgps.profiles import Profile
-from virtualgps.reallogs import (
+from virtualgps.gap.reallogs import (
     M241_MOVING_MIN_SPEED_MPS,
     M241_TRACK_CSV,
     MT3339_STATIC_LOG,
@@ -61,7 +61,7 @@ M241_START_DAYS = (-3, -2, -1, 0, 1, 2, 3)  # days from the TLE set's epoch, sam
 class Statistic:
     """One row of the calibration table.
 
-    key : the :func:`virtualgps.metrics.summary` key
+    key : the :func:`virtualgps.gap.metrics.summary` key
     log : "mt3339_static" or "m241_moving"
     label : what the README calls it
     tolerance : allowed |sim / real - 1| (the issue's +-20 %); None: shown, not calibrated
@@ -268,7 +268,7 @@ def compare(
 
     Parameters
     ----------
-    real : from :func:`virtualgps.reallogs.real_calibration_stats`
+    real : from :func:`virtualgps.gap.reallogs.real_calibration_stats`
     sim : from :func:`sim_calibration_stats`
 
     Returns

@@ -11,7 +11,7 @@ Owns the real logs used to calibrate receiver profiles (``../shared/data``, see 
   and, where logged, per-satellite SNR with ``#`` marking the used ones.
 
 Both records (:class:`virtualgps.nmea.NmeaEpochs`, :class:`LoggerTrack`) expose the attributes
-:func:`virtualgps.metrics.summary` reads (``t_unix_s``, ``lat_deg``, ``lon_deg``, ``quality``,
+:func:`virtualgps.gap.metrics.summary` reads (``t_unix_s``, ``lat_deg``, ``lon_deg``, ``quality``,
 ``hdop``, ``sats_used``, ``sats_in_view``, ...), with the names and shapes of
 :class:`virtualgps.records.Fixes`, so real and simulated epochs go through the same code.
 Corrupt lines are skipped and counted (``n_bad``), never raised: one bad line must not lose an
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from virtualgps.exceptions import InputFileError
-from virtualgps.metrics import count_stats, summary
+from virtualgps.gap.metrics import count_stats, summary
 from virtualgps.nmea import MPS_TO_KMH, read_nmea_epochs
 from virtualgps.records import QUALITY_DGPS, QUALITY_GPS, QUALITY_NONE
 
@@ -42,7 +42,7 @@ M241_TRACK_CSV = "mtk-logger/mtk_logger_m241.csv"
 M241_MOVING_MIN_SPEED_MPS = 2.0
 
 # The facts SOURCES.md states for the MT3339 static hour ("Facts worth knowing, measured on these
-# files"), by the key of the same statistic in :func:`virtualgps.metrics.summary`. The
+# files"), by the key of the same statistic in :func:`virtualgps.gap.metrics.summary`. The
 # autocorrelation time is given there as a range, 125-170 s; first fix "after about 31 s".
 MT3339_SOURCES_FACTS: dict[str, float] = {
     "cep50_m": 4.5,
@@ -225,7 +225,7 @@ def read_mtk_logger_csv(path: str | Path) -> LoggerTrack:
 def real_calibration_stats(shared_data_dir: str | Path) -> dict[str, dict[str, float]]:
     """The "real" column of the calibration table of the ``holux-m1000`` profile.
 
-    - ``"mt3339_static"``: :func:`virtualgps.metrics.summary` of the MT3339 static hour
+    - ``"mt3339_static"``: :func:`virtualgps.gap.metrics.summary` of the MT3339 static hour
       (errors about its median position; C/N0 from GSV; start-up), plus the satellites used
       counted from GSA (``sats_used_gsa_*``) as a cross-check of GGA's count.
     - ``"m241_moving"``: satellites used / in view and HDOP of the M-241 car track, over the
