@@ -23,8 +23,8 @@ from virtualgps.gap.calibration import (
     sim_calibration_stats,
     waypoint_sky,
 )
-from virtualgps.profiles import load_profile
 from virtualgps.gap.reallogs import real_calibration_stats
+from virtualgps.profiles import load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 

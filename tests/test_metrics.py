@@ -17,13 +17,13 @@ from scipy.signal import lfilter
 from scipy.stats import wasserstein_distance
 
 from virtualgps.gap import metrics as M
-from virtualgps.nmea import format_sentence, nmea_epochs_from_lines
 from virtualgps.gap.reallogs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     read_mtk_logger_csv,
     real_calibration_stats,
 )
+from virtualgps.nmea import format_sentence, nmea_epochs_from_lines
 from virtualgps.records import Fixes
 
 MILLIMETRE = 1e-3

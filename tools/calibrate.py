@@ -5,10 +5,11 @@ Usage::
     python tools/calibrate.py [--profile holux-m1000] [--config extra.toml] [--seeds 8]
                               [--data ../shared/data] [--readme README.md] [--plot cal.png]
 
-The real column comes from :func:`virtualgps.gap.reallogs.real_calibration_stats` (also printed by
-tools/real_stats.py), the simulated one from :func:`virtualgps.gap.calibration.sim_calibration_stats`:
-the profile replayed where and when each log was recorded, its NMEA read back and summarised
-exactly like the real log's (see virtualgps/gap/calibration.py). The simulated value is the median
+The real column comes from :func:`virtualgps.gap.reallogs.real_calibration_stats` (also
+printed by tools/real_stats.py), the simulated one from
+:func:`virtualgps.gap.calibration.sim_calibration_stats`: the profile replayed where and when
+each log was recorded, its NMEA read back and summarised exactly like the real log's (see
+virtualgps/gap/calibration.py). The simulated value is the median
 over the seeds, with the seeds' range beside it. ``--readme`` rewrites the table between the
 ``<!-- calibration:start -->`` and ``<!-- calibration:end -->`` lines of that file; ``--plot``
 draws the distributions behind the numbers (seed 0 against the real logs). The exit status is
@@ -29,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtualgps.config import BUNDLED_SCENES_DIR
+from virtualgps.ephemeris import load_tle
 from virtualgps.gap.calibration import (
     CALIBRATION_TLE,
     DEFAULT_SEEDS,
@@ -42,8 +45,6 @@ from virtualgps.gap.calibration import (
     sim_calibration_stats,
     waypoint_sky,
 )
-from virtualgps.config import BUNDLED_SCENES_DIR
-from virtualgps.ephemeris import load_tle
 from virtualgps.gap.metrics import (
     autocorrelation,
     errors_enu_m,
@@ -51,8 +52,6 @@ from virtualgps.gap.metrics import (
     median_position,
     to_regular_grid,
 )
-from virtualgps.nmea import read_nmea_epochs
-from virtualgps.profiles import load_profile
 from virtualgps.gap.reallogs import (
     M241_MOVING_MIN_SPEED_MPS,
     M241_TRACK_CSV,
@@ -60,6 +59,8 @@ from virtualgps.gap.reallogs import (
     read_mtk_logger_csv,
     real_calibration_stats,
 )
+from virtualgps.nmea import read_nmea_epochs
+from virtualgps.profiles import load_profile
 from virtualgps.scene import load_scene
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -31,13 +31,13 @@ import math
 from pathlib import Path
 
 from virtualgps.gap.metrics import summary
-from virtualgps.nmea import read_nmea_epochs
 from virtualgps.gap.reallogs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     MT3339_STATIC_LOG,
     real_calibration_stats,
 )
+from virtualgps.nmea import read_nmea_epochs
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

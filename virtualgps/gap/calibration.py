@@ -40,14 +40,14 @@ import numpy as np
 from virtualgps import geodesy, nmea, pose
 from virtualgps.ephemeris import Constellation, load_tle
 from virtualgps.gap.metrics import median_position, summary
-from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
-from virtualgps.profiles import Profile
 from virtualgps.gap.reallogs import (
     M241_MOVING_MIN_SPEED_MPS,
     M241_TRACK_CSV,
     MT3339_STATIC_LOG,
     read_mtk_logger_csv,
 )
+from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
+from virtualgps.profiles import Profile
 from virtualgps.receiver import Georef, Receiver, compute_sky
 from virtualgps.replay import epoch_grid, run_replay, track_in_scene
 
