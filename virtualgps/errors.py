@@ -175,22 +175,28 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     y : (n_t, m) float
     """
     y = np.empty_like(u)
-    if u.shape[0] > 8 and np.all(p[2:] == p[1]):
-        # Constant coefficient after the first epoch (every batch on the epoch grid; the very
-        # first epoch has an infinite step): a first-order IIR filter, in C, computing the same
-        # products and sums in the same order as the loop below, so a batch equals its epochs
-        # one by one to the bit.
-        from scipy.signal import lfilter
-
-        y[0] = p[0] * y0 + u[0]
-        c = float(p[1])
-        y[1:] = lfilter([1.0], [1.0, -c], u[1:], axis=0, zi=(c * y[0])[None, :])[0]
-        return y
-    # A few epochs (the live loop) or variable steps: the plain recursion is cheaper.
+    n = u.shape[0]
+    # Runs of one coefficient (a batch on the epoch grid has one run after its first epoch; a
+    # real log's epochs, a few, split by its gaps): a first-order IIR filter per long run, in
+    # C, computing the same products and sums in the same order as the plain recursion, so a
+    # batch equals its epochs one by one to the bit.
+    starts = np.flatnonzero(np.concatenate(([n > 0], p[1:] != p[:-1])))
+    bounds = np.append(starts, n)
     prev = y0
-    for k in range(u.shape[0]):
-        prev = p[k] * prev + u[k]
-        y[k] = prev
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b - a > 8:
+            from scipy.signal import lfilter
+
+            y[a] = p[a] * prev + u[a]
+            c = float(p[a])
+            y[a + 1 : b] = lfilter([1.0], [1.0, -c], u[a + 1 : b], axis=0,
+                                   zi=(c * y[a])[None, :])[0]
+        else:  # a few epochs (the live loop): the plain recursion is cheaper
+            for k in range(a, b):
+                prev = p[k] * prev + u[k]
+                y[k] = prev
+            continue
+        prev = y[b - 1]
     return y
 
 

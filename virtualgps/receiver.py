@@ -934,6 +934,20 @@ def hold_altitude(
     return out, float(vals[np.maximum.accumulate(idx)][-1])
 
 
+_LAST_DOP: list = [None]  # (sky, used, dops) of the last ensemble call
+
+
+def _dop_shared(sky: Sky, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dop` for an ensemble sharing one sky: seeds that use the same satellites at
+    every epoch (the paper's model, any model without tracking noise) share the result."""
+    last = _LAST_DOP[0]
+    if last is not None and last[0] is sky and np.array_equal(last[1], used):
+        return last[2]
+    out = dop(sky.los_enu, used)
+    _LAST_DOP[0] = (sky, used.copy(), out)
+    return out
+
+
 def simulate(
     rx: Receiver,
     t_unix_s: np.ndarray,
@@ -942,6 +956,7 @@ def simulate(
     pose_valid: np.ndarray,
     state: ReceiverState,
     rng: np.random.Generator,
+    sky: Sky | None = None,
 ) -> tuple[Fixes, ReceiverState]:
     """Run the receiver over ``n_t`` epochs.
 
@@ -955,6 +970,9 @@ def simulate(
     state : the receiver state after the previous epoch
     rng : the random generator (consumed: one row of uniforms per epoch, its width set by the
         profile: 2 for the paper's model; see :func:`draw_layout`)
+    sky : the sky of these epochs and positions, from :func:`compute_sky` with this receiver
+        (None: computed here). An ensemble of seeds over one run shares it: the sky holds
+        everything that does not depend on the random numbers (satellites, rays, reflections).
 
     Returns
     -------
@@ -965,7 +983,9 @@ def simulate(
     t = np.atleast_1d(np.asarray(t_unix_s, dtype=float))
     n_t = t.shape[0]
     ant = np.where(pose_valid[:, None], antenna_enu_m, 0.0)
-    sky = compute_sky(rx, t, ant)
+    shared_sky = sky is not None
+    if sky is None:
+        sky = compute_sky(rx, t, ant)
     layout = draw_layout(prof, len(rx.ephemeris.prn))
     # All random numbers of an epoch come from one row of uniforms, so batch and
     # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
@@ -973,6 +993,9 @@ def simulate(
     u = rng.random((n_t, layout["total"]))
     dt_s = t - np.concatenate(([state.last_t_unix_s], t[:-1]))  # (np.diff: slow on one epoch)
     dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
+    # Steps to the microsecond: epochs k / rate far from 1970 differ from 1 / rate in their last
+    # bits; equal steps keep the Gauss-Markov recursions on their one-coefficient fast path.
+    dt_s = np.round(dt_s, 6)
     if prof.cn0_tracking.enabled:
         cn0, tracked, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)
         seen = tracked & sky.above_mask & pose_valid[:, None]
@@ -991,7 +1014,7 @@ def simulate(
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
     starting = t < state.no_fix_until_t_unix_s
-    hdop, vdop, pdop = dop(sky.los_enu, used)
+    hdop, vdop, pdop = dop(sky.los_enu, used) if not shared_sky else _dop_shared(sky, used)
 
     err = position_errors(prof, sky, used, n_used, dt_s, state, u, layout)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
