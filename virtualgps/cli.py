@@ -1,6 +1,7 @@
 """The ``virtualgps`` command (DESIGN section 3); the only module that prints.
 
-Subcommands: ``run`` (the daemon), ``replay`` (batch), ``sky`` (what the antenna sees).
+Subcommands: ``run`` (the daemon), ``replay`` (batch), ``sky`` (what the antenna sees), ``gap``
+(the sim-to-real diagnosis).
 Errors are one line on stderr and a non-zero exit; ``--debug`` shows the traceback.
 """
 
@@ -100,6 +101,44 @@ def build_parser() -> argparse.ArgumentParser:
     sky.add_argument("--time", help="UTC time, ISO 8601 (default: now); no sky-time mapping")
     sky.add_argument("--json", action="store_true", help="print a JSON list")
     sky.add_argument("--plot", help="draw a skyplot to this PNG file")
+
+    gap = sub.add_parser(
+        "gap",
+        help="the sim-to-real gap: where real logs differ from the simulation, which effect "
+        "causes it, how far it shrinks on held-out data",
+        description="Re-simulate real runs along their truth as an ensemble of seeds, locate "
+        "where the real log lies outside the ensemble, fit each candidate effect on training "
+        "data and measure the gap on held-out data. Writes DIR/report.json, DIR/report.html "
+        "and DIR/calibrated.toml.",
+    )
+    gap.add_argument("--real", action="append", default=[], metavar="LOG",
+                     help="a real receiver's NMEA log (repeat: one per run)")
+    gap.add_argument("--truth", action="append", default=[], metavar="TRUTH",
+                     help="the run's true trajectory: a pose log (JSONL, CSV, TUM, NMEA), "
+                     "'static' (stood still at an unknown point) or static:LAT,LON,ALT_HAE "
+                     "(repeat, in the order of --real)")
+    gap.add_argument("--scene", help="scene folder or scene.toml, or 'none' (default: the "
+                     "bundled magdeburg-campus; runs far from it are simulated in open sky)")
+    gap.add_argument("--tle", help="TLE file (default: the scene's set, else the newest bundled)")
+    gap.add_argument("--profile", default="holux-m1000",
+                     help="the profile under test (default holux-m1000)")
+    gap.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    gap.add_argument("--seeds", type=int, default=50, help="ensemble size (default 50)")
+    gap.add_argument("--fit-seeds", type=int,
+                     help="seeds per candidate parameter set while fitting (default min(seeds, "
+                     "10))")
+    gap.add_argument("--effects", help="candidate effects, comma-separated (default: every "
+                     "effect the profile lacks or has switched off)")
+    gap.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
+    gap.add_argument("--dask", metavar="ADDRESS",
+                     help="send the ensemble jobs to this Dask scheduler (tcp://HOST:8786)")
+    gap.add_argument("--blocks", type=int, default=4,
+                     help="held-out time blocks for a single run (default 4)")
+    gap.add_argument("--selfcheck", action="store_true",
+                     help="diagnose pseudo-real logs with known injected effects instead")
+    gap.add_argument("--trials", type=int, default=3,
+                     help="self-check trials per effect (default 3)")
+    gap.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
     return parser
 
 
@@ -389,7 +428,72 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: -r["el_deg"])
 
 
-COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky}
+def _gap_options(args: argparse.Namespace):
+    from virtualgps.gap.diagnose import Options
+    from virtualgps.gap.effects import EFFECT_NAMES
+
+    effects = None
+    if args.effects:
+        effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
+        bad = [e for e in effects if e not in EFFECT_NAMES]
+        if bad:
+            raise VirtualGPSError(f"--effects: unknown effect {', '.join(bad)}; known: "
+                                  f"{', '.join(EFFECT_NAMES)}")
+    for name in ("seeds", "fit_seeds", "jobs", "blocks", "trials"):
+        v = getattr(args, name)
+        if v is not None and v < (2 if name in ("seeds", "blocks") else 1):
+            raise VirtualGPSError(f"--{name.replace('_', '-')} must be at least "
+                                  f"{2 if name in ('seeds', 'blocks') else 1}, got {v}")
+    return Options(seeds=args.seeds, fit_seeds=args.fit_seeds, effects=effects,
+                   jobs=args.jobs, dask=args.dask, blocks=args.blocks)
+
+
+def _status(stream):
+    """A one-line progress display on a terminal (nothing otherwise)."""
+    if not stream.isatty():
+        return None
+
+    def show(text: str) -> None:
+        stream.write("\r\x1b[K" + text[:120])
+        stream.flush()
+
+    return show
+
+
+def cmd_gap(args: argparse.Namespace) -> int:
+    from virtualgps.gap import tool
+
+    opts = _gap_options(args)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise VirtualGPSError(f"--out {out}: exists and is not a folder")
+    progress = _status(sys.stderr)
+    if args.selfcheck:
+        from virtualgps.gap import selfcheck
+
+        result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress)
+        if progress:
+            sys.stderr.write("\r\x1b[K")
+        for line in selfcheck.summary_lines(result):
+            print(line)
+        print(f"wrote {out / 'selfcheck.json'} and {out / 'report.html'}")
+        return 0
+    inp = tool.GapInputs(real=tuple(args.real), truth=tuple(args.truth), scene=args.scene,
+                         tle=args.tle, profile=args.profile)
+    report, figures, calibrated = tool.diagnose(inp, opts, progress=progress)
+    if progress:
+        sys.stderr.write("\r\x1b[K")
+    try:
+        tool.write_outputs(report, figures, calibrated, report["profile"], out)
+    except OSError as exc:
+        raise VirtualGPSError(f"--out {out}: cannot write the report ({exc.strerror})") from None
+    for line in tool.summary_lines(report):
+        print(line)
+    print(f"wrote {out / 'report.json'}, {out / 'report.html'} and {out / 'calibrated.toml'}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky, "gap": cmd_gap}
 
 
 def main(argv: list[str] | None = None) -> int:

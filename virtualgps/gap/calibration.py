@@ -320,6 +320,42 @@ def waypoint_markers(root: Path) -> np.ndarray:
     return np.array(pairs, dtype=float)
 
 
+def waypoint_antennas(root: Path, scene) -> tuple[list[Path], list[np.ndarray]]:
+    """The 14 Magdeburg waypoint logs in time order and their antennas: markers 5-18 of
+    ``staticmap.txt``, 1.5 m above the campus mesh's ground (SOURCES.md).
+
+    Returns
+    -------
+    logs : the log files, in time order
+    antennas : (3,) scene-ENU metres per log
+    """
+    paths = sorted((Path(root) / WAYPOINT_LOGS).glob("NMEA_Log*.txt"))
+    first = [float(np.nanmin(read_nmea_epochs(p).t_unix_s)) for p in paths]
+    paths = [p for _, p in sorted(zip(first, paths, strict=True))]
+    markers = waypoint_markers(Path(root))[WAYPOINT_MARKERS]
+    if len(paths) != len(markers):
+        raise ValueError(f"{len(paths)} waypoint logs for {len(markers)} markers")
+    antennas = []
+    for lat, lon in markers:
+        enu = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, scene.alt_hae_m),
+                                  scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
+        up = float(np.asarray(scene.ground_height_m(enu[0], enu[1]))) + ANTENNA_HEIGHT_M
+        antennas.append(np.array([enu[0], enu[1], up]))
+    return paths, antennas
+
+
+def waypoint_truths(root: Path, scene) -> tuple[list[Path], list[str]]:
+    """The Magdeburg waypoint logs and their truths as ``virtualgps gap`` takes them
+    (``static:LAT,LON,ALT_HAE`` at each marker, 1.5 m above the mesh ground)."""
+    paths, antennas = waypoint_antennas(root, scene)
+    truths = []
+    for a in antennas:
+        lat, lon, alt = geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(
+            a, scene.lat_deg, scene.lon_deg, scene.alt_hae_m))
+        truths.append(f"static:{float(lat):.9f},{float(lon):.9f},{float(alt):.3f}")
+    return paths, truths
+
+
 def waypoint_sky(
     profile: Profile, shared_data_dir: str | Path, scene, seed: int = 0
 ) -> WaypointSky:
@@ -340,21 +376,14 @@ def waypoint_sky(
     root = Path(shared_data_dir)
     ephemeris = load_tle(root / MAGDEBURG_TLE)
     georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
-    logs = [read_nmea_epochs(p) for p in sorted((root / WAYPOINT_LOGS).glob("NMEA_Log*.txt"))]
-    logs.sort(key=lambda ep: float(np.nanmin(ep.t_unix_s)))
-    markers = waypoint_markers(root)[WAYPOINT_MARKERS]
-    if len(logs) != len(markers):
-        raise ValueError(f"{len(logs)} waypoint logs for {len(markers)} markers")
+    paths, antennas = waypoint_antennas(root, scene)
+    logs = [read_nmea_epochs(p) for p in paths]
     # The geometry alone: which direct paths cross a building (no reflections considered).
     bare = Receiver(replace(profile, nlos=replace(profile.nlos, enabled=False)), ephemeris,
                     scene, georef)
     rx = Receiver(profile, ephemeris, scene, georef)
-    spans, antennas = [], []
-    for real, (lat, lon) in zip(logs, markers, strict=True):
-        enu = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, georef.alt0_hae_m),
-                                  georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
-        up = scene.ground_height_m(enu[0], enu[1]) + ANTENNA_HEIGHT_M
-        antennas.append(np.array([enu[0], enu[1], up]))
+    spans = []
+    for real in logs:
         t_real = real.t_unix_s[np.isfinite(real.t_unix_s)]
         spans.append(np.arange(np.ceil(t_real.min()), np.floor(t_real.max()) + 1.0))
     # The phone was carried from waypoint to waypoint with its receiver on: one run, walking

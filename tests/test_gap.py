@@ -1,0 +1,280 @@
+"""The sim-to-real gap tool (issue #8): its statistics against closed forms and numpy, its
+ingest of real logs, the withheld-effect self-check, and the real withheld cases of
+../shared/data through the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from virtualgps.gap import diagnose as dg
+from virtualgps.gap import effects as fx
+from virtualgps.gap import where
+from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
+from virtualgps.pose import PoseTrack
+from virtualgps.profiles import build_profile, load_profile, load_profile_dict
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+
+
+@pytest.fixture(autouse=True)
+def stop_workers():
+    """Local worker pools live for the process; a test ends with none (no leaked pipes)."""
+    yield
+    from virtualgps.gap import jobs
+
+    jobs.shutdown()
+
+
+# --- statistics ----------------------------------------------------------------------------------
+
+
+def test_row_quantile_is_numpys_nanquantile():
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(6, 300))
+    x[x > 1.2] = np.nan
+    x[4] = np.nan  # an empty row
+    for q in (0.05, 0.5, 0.95):
+        got = where.row_quantile(x, q)
+        rows = [0, 1, 2, 3, 5]
+        np.testing.assert_allclose(got[rows], np.nanquantile(x[rows], q, axis=1), rtol=1e-12)
+        assert np.isnan(got[4])
+
+
+def test_binned_quantile_of_whole_numbers_is_the_order_statistic():
+    rng = np.random.default_rng(2)
+    x = rng.integers(10, 50, size=(4, 500)).astype(float)
+    m = rng.random(x.shape) > 0.3
+    got = where.binned_quantile(x, m, 0.5, 1.0, 99.0)
+    for i in range(4):
+        v = np.sort(x[i][m[i]])
+        assert got[i] == v[(v.size - 1) // 2]
+
+
+def test_lag_recovers_a_known_latency():
+    """e = b - L v + noise: the least-squares lag is L within its noise (vehicle turning)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(600.0)
+    heading = 0.02 * t
+    vel = np.stack([5 * np.sin(heading), 5 * np.cos(heading), 0 * t], axis=1)
+    err = np.array([2.0, -1.0, 0.0]) - 1.3 * vel + rng.normal(0, 1.0, (600, 3))
+    lag = where.lag_s(err[None], vel, np.ones(600, bool))
+    assert lag[0] == pytest.approx(1.3, abs=0.05)
+
+
+def test_position_quantum_is_the_logs_printed_resolution():
+    lat = 52.0 + np.round(np.random.default_rng(4).normal(0, 1e-4, 200) * 6e5) / 6e5
+    assert where.position_quantum_min(lat, lat) == pytest.approx(1e-4)
+
+
+def test_distance_is_zero_when_real_equals_the_ensemble_and_grows_with_the_ratio():
+    st = where.SegmentStats({"cep50_m": 4.5}, {"cep50_m": np.full(10, 4.5)}, {})
+    assert where.distance("cep50_m", st) == 0.0
+    st = where.SegmentStats({"cep50_m": 9.5}, {"cep50_m": np.full(10, 4.5)}, {})
+    assert where.distance("cep50_m", st) == pytest.approx(np.log(10.0 / 5.0))
+    st = where.SegmentStats({"ttff_s": 31.0}, {"ttff_s": np.full(5, np.nan)}, {})
+    assert where.distance("ttff_s", st) == where.D_CAP  # shown by the real receiver only
+
+
+# --- candidates and profiles ---------------------------------------------------------------------
+
+
+def test_candidates_are_the_effects_a_profile_lacks_and_build_valid_profiles():
+    usarsim, _ = load_profile_dict("usarsim")
+    cands, skipped = fx.candidates(usarsim, has_mesh=True)
+    names = {c.name for c in cands}
+    assert {"correlated_error", "cold_start", "nlos", "cn0_tracking", "latency", "noise_level",
+            "dop_error", "foliage", "elevation_mask", "static_hold", "nav_filter",
+            "sbas"} <= names
+    assert "multipath" in skipped  # needs dop_error
+    holux, _ = load_profile_dict("holux-m1000")
+    hc = {c.name for c in fx.candidates(holux, has_mesh=False)[0]}
+    assert "correlated_error" not in hc and "nlos" not in fx.candidates(holux, True)[0]
+    for c in cands:
+        for pt in (c.grid[0], c.grid[-1], c.grid[c.default]):
+            build_profile(fx.apply(usarsim, pt))  # every grid point is a valid profile
+
+
+def test_calibrated_profile_toml_round_trips(tmp_path):
+    table, _ = load_profile_dict("holux-m1000")
+    table = fx.apply(table, {"latency": {"enabled": True, "latency_s": 0.5}})
+    p = tmp_path / "cal.toml"
+    dg.write_profile(table, "holux-m1000", [{"name": "latency"}], p)
+    prof = load_profile(str(p))
+    assert prof.latency.enabled and prof.latency.latency_s == 0.5
+    assert prof.name == "holux-m1000-calibrated"
+    assert tomllib.loads(p.read_text())["nmea"]["sentences"][0] == "GGA"
+
+
+def test_fit_keeps_the_default_without_evidence():
+    gaps = np.array([[0.50, 0.40], [0.501, 0.41], [0.499, 0.39]])  # (points, units)
+    assert dg._fit_point(gaps, np.array([True, False]), default=1) == 1
+    gaps[0, 0] = 0.3  # clear evidence for point 0
+    assert dg._fit_point(gaps, np.array([True, False]), default=1) == 0
+
+
+# --- ingest --------------------------------------------------------------------------------------
+
+
+def _sentence(body: str) -> str:
+    from virtualgps.nmea import nmea_checksum
+
+    return f"${body}*{nmea_checksum(body)}"
+
+
+def test_ingest_survives_what_real_logs_hold(tmp_path):
+    lines = [
+        "\x00\x8a\x13binary noise",
+        _sentence("GPGGA,235958.000,5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"),
+        _sentence("GPRMC,235958.000,A,5207.0000,N,01138.0000,E,0.0,0.0,281117,,,A"),
+        "2:52:16:587 Nachm. 03/28/17 - " + _sentence("GPGSV,1,1,02,05,40,100,35,07,20,200,"),
+        _sentence("GLGSV,1,1,01,70,30,90,30"),
+        _sentence("GNGSA,A,3,05,07,,,,,,,,,,,1.5,0.9,1.2"),
+        "$GPGGA,235959.000,5207.0001,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,*00",  # checksum
+        "$GPGGA,235959.000,5207.00",  # truncated
+        _sentence("GPGGA,000001.000,5207.0002,N,01138.0000,E,7,08,0.9,50.0,M,44.0,M,,"),
+        _sentence("GPGGA,000001.000,5207.0002,N,01138.0000,E,7,08,0.9,50.0,M,44.0,M,,"),
+        _sentence("PMTK010,001"),
+    ]
+    p = tmp_path / "log.nmea"
+    p.write_bytes("\r\n".join(lines).encode("latin-1"))
+    ep, skipped, sentences = read_real_log(p)
+    assert len(ep) == 2
+    assert ep.t_unix_s[1] - ep.t_unix_s[0] == pytest.approx(3.0)  # across midnight
+    assert list(ep.quality) == [1, 7]
+    assert skipped["bad_checksum"] == 1 and skipped["truncated"] == 1
+    assert skipped["not_nmea"] == 1 and skipped["not_used"] == 1
+    assert sentences["GSV"] == 2 and sentences["GGA"] == 3
+    run = load_run(p, "static:52.1166,11.6333,94")
+    assert run.has_gsv and run.has_cn0 and run.has_gsa and run.quality_codes == {1: 1, 7: 1}
+
+
+def test_bad_truth_specs_are_clear_errors():
+    from virtualgps.exceptions import ConfigError
+
+    for spec in ("static:1,2", "static:95,0,0", "no/such/file.csv"):
+        with pytest.raises(ConfigError):
+            parse_truth(spec)
+    assert parse_truth("static:-33.86,151.21,50").lat_deg == -33.86
+
+
+def test_time_offset_recovered_on_a_moving_track():
+    rng = np.random.default_rng(5)
+    t = 1.6e9 + np.arange(600.0)
+    heading = 0.01 * t
+    lat = 37.4 + np.cumsum(10 * np.cos(heading)) / 111e3
+    lon = -122.1 + np.cumsum(10 * np.sin(heading)) / (111e3 * np.cos(np.radians(37.4)))
+    truth = PoseTrack(t, "geodetic", np.stack([lat, lon, np.zeros_like(t)], 1),
+                      np.full((600, 3), np.nan))
+    noise = rng.normal(0, 3.0 / 111e3, (2, 600))
+    # the real log's clock runs 4.7 s ahead of the truth's
+    real_lat = np.interp(t - 4.7, t, lat) + noise[0]
+    real_lon = np.interp(t - 4.7, t, lon) + noise[1]
+    off, info = estimate_time_offset_s(t, real_lat, real_lon, truth)
+    assert info["applied"] and off == pytest.approx(4.7, abs=0.2)
+    # a lag of a second is reported (it could be the receiver's latency), not applied
+    off, info = estimate_time_offset_s(t, np.interp(t - 1.2, t, lat) + noise[0],
+                                       np.interp(t - 1.2, t, lon) + noise[1], truth)
+    assert off == 0.0 and not info["applied"] and info["best_s"] == pytest.approx(1.2, abs=0.2)
+
+
+def test_real_logs_load(shared_data):
+    mt = load_run(shared_data / "mt3339-static" / "hour_test_1.txt", "static")
+    assert mt.has_gsv and mt.skipped.get("not_nmea", 0) >= 1  # binary noise at the start
+    first_fix = mt.epochs.t_unix_s[np.argmax(mt.epochs.quality > 0)] - mt.epochs.t_unix_s[0]
+    assert 25.0 < first_fix < 40.0
+    d = shared_data / "gsdc-2020-05-14-mtv"
+    gs = load_run(d / "Pixel4_chipset.nmea", str(d / "SPAN_Pixel4_1Hz.nmea"))
+    assert not gs.has_gsv and not gs.has_gsa and gs.quality_codes == {7: len(gs.epochs)}
+    assert abs(gs.time_offset_s) < 2.0, gs.offset_info
+
+
+# --- self-check and real cases -------------------------------------------------------------------
+
+
+def test_selfcheck_ranks_injected_effects_first(tmp_path):
+    from virtualgps.gap import selfcheck
+
+    res = selfcheck.run(dg.Options(seeds=10, jobs=2, effects=("latency", "sbas")), trials=1,
+                        out_dir=tmp_path)
+    assert [t["ranked_first"] for t in res["trials"]] == ["latency", "sbas"]
+    lat = res["trials"][0]
+    assert lat["recovered"]["latency_s"] == pytest.approx(lat["params"]["latency_s"], abs=0.3)
+    doc = json.loads((tmp_path / "selfcheck.json").read_text())
+    assert set(doc) >= {"trials", "confusion"} and doc["confusion"]["latency"] == {"latency": 1}
+    assert (tmp_path / "report.html").stat().st_size > 10_000
+
+
+def _gap_cli(args: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "virtualgps", "gap", *args],
+                          capture_output=True, text=True, timeout=900)
+
+
+@pytest.mark.slow
+def test_mt3339_hour_names_correlated_error_and_cold_start(shared_data, tmp_path):
+    import gap_cases
+
+    inp = gap_cases.case_inputs("mt3339", shared_data)
+    out = tmp_path / "mt"
+    r = _gap_cli(["--real", inp.real[0], "--truth", "static", "--scene", "none", "--tle",
+                  inp.tle, "--profile", "usarsim", "--seeds", "20", "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert set(report) >= {"runs", "profile", "where", "effects", "gap_baseline", "gap_final",
+                           "unexplained", "calibrated_profile", "not_assessed"}
+    for what, ok, measured in gap_cases.checks("mt3339", report):
+        assert ok, f"{what}: {measured}"
+    w = {(x["metric"], x["segment"]) for x in report["where"]}
+    assert {("cep50_m", "all"), ("autocorr_s", "all"), ("ttff_s", "startup"),
+            ("eq4_deg", "all")} <= w
+    # the calibrated profile runs in replay
+    poses = tmp_path / "still.jsonl"
+    poses.write_text("".join(json.dumps({"t": 1489257600.0 + k, "x": 0.0, "y": 0.0, "z": 0.0})
+                             + "\n" for k in range(30)))
+    cal = out / report["calibrated_profile"]
+    rep = subprocess.run([sys.executable, "-m", "virtualgps", "replay", str(poses), "--out",
+                          str(tmp_path / "x.nmea"), "--profile", str(cal), "--scene", "none",
+                          "--origin", "44.98,-93.24,250", "--tle", inp.tle],
+                         capture_output=True, text=True, timeout=120)
+    assert rep.returncode == 0, rep.stderr
+    assert (tmp_path / "x.nmea").read_text().count("$GPGGA") == 30
+
+
+@pytest.mark.slow
+def test_magdeburg_waypoints_rank_nlos_first(shared_data, tmp_path):
+    import gap_cases
+
+    report, _ = gap_cases.run_case("magdeburg", shared_data, tmp_path, dg.Options(seeds=20))
+    for what, ok, measured in gap_cases.checks("magdeburg", report):
+        assert ok, f"{what}: {measured}"
+
+
+@pytest.mark.slow
+def test_gsdc_drive_without_gsv_reports_what_it_cannot_assess(shared_data, tmp_path):
+    import gap_cases
+
+    report, _ = gap_cases.run_case("gsdc", shared_data, tmp_path, dg.Options(seeds=10))
+    for what, ok, measured in gap_cases.checks("gsdc", report):
+        assert ok, f"{what}: {measured}"
+    html = (tmp_path / "gsdc" / "report.html").read_text()
+    assert "no GSV" in html or "not assessed" in html.lower()
+
+
+def test_gap_cli_errors_are_one_line(tmp_path):
+    empty = tmp_path / "empty.nmea"
+    empty.write_text("")
+    for args in (["--real", str(empty), "--truth", "static"],
+                 ["--real", str(tmp_path / "none.nmea"), "--truth", "static"],
+                 ["--real", str(empty)],
+                 ["--effects", "teleport"]):
+        r = _gap_cli([*args, "--out", str(tmp_path / "o")])
+        assert r.returncode == 2, (args, r.stderr)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("virtualgps: error:"), r.stderr

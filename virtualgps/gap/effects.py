@@ -1,0 +1,206 @@
+"""The candidate effects of a diagnosis: which DESIGN section 6 effects a profile lacks, the
+parameter values each is tried with, and how a candidate becomes a profile.
+
+"Adding an effect" is switching on its profile table (the same ``receiver.simulate``), so a
+candidate is a small table of profile keys (``{"correlated_error": {"enabled": True, "tau_s":
+120.0, ...}}``) merged into the profile under test. Each candidate's grid spans the values its
+parameters take in real receivers (sources in :mod:`virtualgps.profiles`); the fit picks the
+grid point with the smallest training gap (common random numbers: every grid point runs the
+same seeds, so the objective is smooth in the parameters). ``default`` is the grid point kept
+when the training data say nothing about the parameters (a flat objective, e.g. a start-up
+time when no training unit holds a power-on).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any
+
+from virtualgps.profiles import build_profile, merge
+
+# Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
+EFFECT_NAMES = (
+    "noise_level", "correlated_error", "dop_error", "cold_start", "nlos", "multipath",
+    "foliage", "sky_mask", "cn0_tracking", "elevation_mask", "latency", "static_hold",
+    "nav_filter", "sbas",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect to try: its name, the profile tables of each grid point, the default point.
+
+    grid : tuple of override tables ({table: {key: value}}), one per parameter set
+    params : the fitted parameters' names (profile keys), for the report
+    default : index into ``grid`` used when the training data cannot tell the points apart
+    """
+
+    name: str
+    grid: tuple[dict[str, dict[str, Any]], ...]
+    params: tuple[str, ...]
+    default: int = 0
+
+    def params_of(self, i: int) -> dict[str, Any]:
+        """The fitted parameters of grid point ``i`` as profile keys (flat, for the report)."""
+        out: dict[str, Any] = {}
+        for table in self.grid[i].values():
+            out.update({k: v for k, v in table.items() if k in self.params})
+        return out
+
+
+def _points(table: str, fixed: dict[str, Any], **axes: tuple) -> tuple[dict, ...]:
+    keys = list(axes)
+    return tuple(
+        {table: {**fixed, **dict(zip(keys, vals, strict=True))}}
+        for vals in itertools.product(*(axes[k] for k in keys))
+    )
+
+
+def _enabled(profile: dict[str, Any], table: str) -> bool:
+    return bool(profile.get(table, {}).get("enabled", False))
+
+
+def candidates(
+    profile: dict[str, Any], has_mesh: bool, names: tuple[str, ...] | None = None
+) -> tuple[list[Candidate], dict[str, str]]:
+    """The effects a profile lacks (or has switched off) that can be tried on it.
+
+    Parameters
+    ----------
+    profile : the profile table under test (as read from its TOML, with earlier accepted
+        effects merged in)
+    has_mesh : some run is simulated in a scene with a mesh (``nlos``, ``multipath`` need
+        walls)
+    names : restrict to these effects (``--effects``); None: every one
+
+    Returns
+    -------
+    candidates : the applicable ones
+    skipped : {name: why it cannot be tried on this profile}
+    """
+    out: list[Candidate] = []
+    skipped: dict[str, str] = {}
+    noise = profile.get("noise", {})
+    baseline = noise.get("model", "usarsim") == "usarsim"
+    dop = _enabled(profile, "dop_error")
+    for name in names or EFFECT_NAMES:
+        if name not in EFFECT_NAMES:
+            skipped[name] = "not an effect of DESIGN section 6"
+            continue
+        table = "sky" if name == "elevation_mask" else name
+        if name != "noise_level" and name != "elevation_mask" and _enabled(profile, table):
+            continue  # already in the profile
+        c = _candidate(name, profile, baseline, dop, has_mesh)
+        if isinstance(c, str):
+            skipped[name] = c
+        else:
+            out.append(c)
+    return out, skipped
+
+
+def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool):  # noqa: C901
+    on = {"enabled": True}
+    if name == "noise_level":
+        if not baseline:
+            return "the profile has no baseline noise to scale (noise.model = \"none\")"
+        mx = float(profile.get("noise", {}).get("max_noise_m", 3.0))
+        mn = float(profile.get("noise", {}).get("min_noise_m", 1.0))
+        grid = tuple({"noise": {"max_noise_m": round(mx * f, 3), "min_noise_m": round(mn * f, 3)}}
+                     for f in (1.0, 0.1, 0.25, 0.5, 0.75, 1.5, 2.0, 3.0, 4.0))
+        return Candidate(name, grid, ("max_noise_m", "min_noise_m"))
+    if name == "correlated_error":
+        domain = "range" if dop else "position"
+        grid = _points(name, {**on, "domain": domain},
+                       tau_s=(30.0, 60.0, 90.0, 120.0, 150.0, 200.0, 300.0, 450.0, 600.0),
+                       sigma_m=(1.5, 2.5, 3.5, 5.0))
+        return Candidate(name, grid, ("tau_s", "sigma_m", "domain"), default=18)
+    if name == "dop_error":
+        # the UERE budget scaled as a whole (its textbook defaults x f)
+        base = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m": 0.5,
+                "multipath_a_m": 0.13, "multipath_b_m": 0.53}
+        grid = tuple({"dop_error": {**on, **{k: round(v * f, 3) for k, v in base.items()}},
+                      "noise": {"model": "none"}} for f in (1.0, 0.5, 2.0, 3.0))
+        return Candidate(name, grid, tuple(base))
+    if name == "cold_start":
+        grid = ({name: {**on, "power_on": "hot"}},) + tuple(
+            {name: {**on, "power_on": "cold", "ttff_cold_s": v}}
+            for v in (10.0, 20.0, 30.0, 35.0, 45.0, 60.0, 90.0))
+        return Candidate(name, grid, ("power_on", "ttff_cold_s", "ttff_hot_s"), default=4)
+    if name == "nlos":
+        if not has_mesh:
+            return "needs a scene with walls (no run is simulated in a mesh)"
+        tracking = _enabled(profile, "cn0_tracking")
+        grid = _points(name, on, scattering=(False, True), max_dist_m=(30.0, 50.0),
+                       reflection_loss_db=(4.0, 7.0, 10.0) if tracking else (7.0,))
+        return Candidate(name, grid, ("scattering", "max_dist_m", "reflection_loss_db"))
+    if name == "multipath":
+        if not dop:
+            return "needs dop_error (its range errors are solved with the others)"
+        if not has_mesh:
+            return "needs a scene with walls"
+        grid = _points(name, on, sigma_m=(2.0, 4.0, 8.0, 16.0), tau_s=(10.0, 30.0, 100.0))
+        return Candidate(name, grid, ("sigma_m", "tau_s"), default=4)
+    if name == "foliage":
+        if not has_mesh:
+            return "needs a scene with trees"
+        grid = _points(name, on, db_per_m=(0.5, 1.0, 2.0, 4.0))
+        return Candidate(name, grid, ("db_per_m",), default=1)
+    if name == "sky_mask":
+        return "learned from the data (see diagnose.sky_mask_candidate)"
+    if name == "cn0_tracking":
+        grid = _points(name, on, cn0_zenith_dbhz=(30.0, 33.0, 36.0, 39.0, 42.0, 45.0),
+                       horizon_loss_db=(10.0, 14.0, 18.0, 22.0, 26.0))
+        return Candidate(name, grid, ("cn0_zenith_dbhz", "horizon_loss_db"), default=21)
+    if name == "elevation_mask":
+        cur = float(profile.get("sky", {}).get("elevation_mask_deg", 5.0))
+        vals = tuple(v for v in (0.0, 5.0, 10.0, 15.0, 20.0) if v != cur)
+        grid = tuple({"sky": {"elevation_mask_deg": v}} for v in (cur,) + vals)
+        return Candidate(name, grid, ("elevation_mask_deg",))
+    if name == "latency":
+        grid = _points(name, on, latency_s=(0.1, 0.25, 0.5, 1.0, 2.0))
+        return Candidate(name, grid, ("latency_s",), default=0)
+    if name == "nav_filter":
+        grid = _points(name, on, tau_s=(0.5, 1.0, 2.0, 4.0, 8.0, 16.0))
+        return Candidate(name, grid, ("tau_s",), default=1)
+    if name == "static_hold":
+        grid = _points(name, on, threshold_mps=(0.2, 0.4, 0.8, 1.5))
+        return Candidate(name, grid, ("threshold_mps",), default=1)
+    if name == "sbas":
+        return Candidate(name, ({name: dict(on)},), ())
+    raise AssertionError(name)
+
+
+def apply(profile: dict[str, Any], overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The profile table with a candidate's tables merged in."""
+    return merge(profile, overrides)
+
+
+def build(profile: dict[str, Any], source: str = "<gap>"):
+    """:func:`virtualgps.profiles.build_profile` of a merged table."""
+    return build_profile(profile, source)
+
+
+def to_toml(table: dict[str, Any]) -> str:
+    """Write a profile table as TOML (scalars, strings, lists and nested tables)."""
+    def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, int | float):
+            return repr(float(v)) if isinstance(v, float) else str(v)
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        raise TypeError(f"cannot write {v!r} as TOML")
+
+    def section(prefix: str, t: dict[str, Any]) -> list[str]:
+        lines = [f"{k} = {value(v)}" for k, v in t.items() if not isinstance(v, dict)]
+        for k, v in t.items():
+            if isinstance(v, dict):
+                name = f"{prefix}.{k}" if prefix else k
+                key = name if all(c.isalnum() or c in "_-." for c in k) else f'{prefix}."{k}"'
+                lines += ["", f"[{key}]"] + section(name, v)
+        return lines
+
+    return "\n".join(section("", table)) + "\n"

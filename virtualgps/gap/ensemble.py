@@ -1,0 +1,272 @@
+"""Re-simulating a real run as an ensemble of seeds: the same receiver core, at the real epochs,
+along the run's truth, from the run's own power-on.
+
+A :class:`RunSetup` is everything the simulator needs of one run, small and picklable, so an
+ensemble job (:class:`EnsembleJob`: a run, a profile and some seeds) can go to a local worker
+process or a Dask worker. Workers load the scene and the TLE set once (by path) and keep each
+run's sky (satellites, rays, reflections: what does not depend on the random numbers) between
+jobs, so fitting an effect's parameters over a grid costs only the random part of the receiver
+(:func:`virtualgps.receiver.simulate` with ``sky=``). Every seed is its own generator, so an
+ensemble's result does not depend on how its seeds are split into jobs or where they run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps.profiles import Profile
+from virtualgps.receiver import (
+    Georef,
+    Receiver,
+    ReceiverState,
+    Sky,
+    compute_sky,
+    initial_state,
+    simulate,
+)
+from virtualgps.records import QUALITY_NONE
+
+# A worker keeps at most this many skies (one per run and sky-relevant profile settings).
+SKY_CACHE_SIZE = 48
+
+
+@dataclass(frozen=True)
+class RunSetup:
+    """One real run, as the simulator replays it (``n`` real epochs).
+
+    key : unique name of the run
+    t_unix_s : (n,) float, the real log's epoch times, UTC seconds
+    antenna_enu_m : (n, 3) float, metres, the truth in the scene frame of ``georef`` (0 where
+        not valid)
+    vel_enu_mps : (n, 3) float, m/s, ENU (0 where not valid)
+    valid : (n,) bool, the truth is known at the epoch
+    power_on_unix_s : when the real receiver was switched on (its log's first epoch), UTC s;
+        NaN: the log starts with a fix (the receiver was already running: no start-up)
+    georef : the scene origin
+    scene_path : the scene folder (None: open sky)
+    tle_path : the TLE set
+    sky_shift_s : seconds subtracted before propagating the satellites (0: the true sky)
+    digest : identifies the run's epochs and positions (what a worker's sky cache is keyed by)
+    """
+
+    key: str
+    t_unix_s: np.ndarray
+    antenna_enu_m: np.ndarray
+    vel_enu_mps: np.ndarray
+    valid: np.ndarray
+    power_on_unix_s: float
+    georef: Georef
+    scene_path: str | None
+    tle_path: str
+    sky_shift_s: float = 0.0
+    digest: str = ""
+
+
+def setup_digest(t_unix_s: np.ndarray, antenna_enu_m: np.ndarray, valid: np.ndarray,
+                 *context: object) -> str:
+    """A short hash of a run's epochs, positions and context (scene, TLE, georeference)."""
+    h = hashlib.blake2b(digest_size=12)
+    for a in (t_unix_s, antenna_enu_m, valid):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(repr(context).encode())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class EnsembleJob:
+    """Simulate one run with one profile for some seeds."""
+
+    setup: RunSetup
+    profile: Profile
+    seeds: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Ensemble:
+    """Simulated output of one run over ``s`` seeds, ``n`` epochs, ``k`` satellites.
+
+    seeds : (s,) int
+    lat_deg, lon_deg, alt_hae_m : (s, n) float, the fixes (NaN without a fix)
+    quality : (s, n) int8, GGA quality
+    hdop : (s, n) float32
+    speed_mps : (s, n) float32, reported speed (NaN without a fix)
+    used : (s, n, k) bool
+    cn0_dbhz : (s, n, k) float32, NaN where not tracked
+    """
+
+    seeds: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_hae_m: np.ndarray
+    quality: np.ndarray
+    hdop: np.ndarray
+    speed_mps: np.ndarray
+    used: np.ndarray
+    cn0_dbhz: np.ndarray
+
+    @staticmethod
+    def concat(parts: list[Ensemble]) -> Ensemble:
+        """Join ensembles of the same run along the seed axis."""
+        if len(parts) == 1:
+            return parts[0]
+        return Ensemble(**{
+            name: np.concatenate([getattr(p, name) for p in parts])
+            for name in Ensemble.__dataclass_fields__
+        })
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What the scene and the sky are at each epoch of a run (no receiver): ``n`` epochs,
+    ``k`` satellites.
+
+    prn : (k,) int; az_deg, el_deg : (n, k) float32, degrees
+    crosses_building : (n, k) bool, the direct path hits an occluder of the scene
+    """
+
+    prn: np.ndarray
+    az_deg: np.ndarray
+    el_deg: np.ndarray
+    crosses_building: np.ndarray
+
+
+_SCENES: dict[str | None, object] = {}
+_EPHEMERIDES: dict[str, object] = {}
+_SKIES: OrderedDict[tuple, Sky] = OrderedDict()
+
+
+def _scene(path: str | None):
+    if path is None:
+        return None
+    if path not in _SCENES:
+        from virtualgps.scene import load_scene
+
+        _SCENES[path] = load_scene(path)
+    return _SCENES[path]
+
+
+def _ephemeris(path: str):
+    if path not in _EPHEMERIDES:
+        from virtualgps import ephemeris as eph
+
+        p = Path(path)
+        _EPHEMERIDES[path] = eph.read_lookup_table(p) if eph.is_lookup_table(p) else eph.load_tle(p)
+    return _EPHEMERIDES[path]
+
+
+def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
+    """The receiver of a run (scene and ephemeris loaded once per process)."""
+    scene = _scene(setup.scene_path)  # (its own georeference is the setup's)
+    return Receiver(profile, _ephemeris(setup.tle_path), scene, setup.georef, setup.sky_shift_s)
+
+
+def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
+    """The profile settings :func:`virtualgps.receiver.compute_sky` depends on."""
+    mp = profile.multipath
+    return (setup.digest or id(setup), repr(profile.sky), repr(profile.foliage),
+            repr(profile.sky_mask), repr(profile.nlos), mp.enabled, mp.max_dist_m)
+
+
+def _antenna(setup: RunSetup) -> np.ndarray:
+    return np.where(setup.valid[:, None], setup.antenna_enu_m, 0.0)
+
+
+def run_sky(rx: Receiver, setup: RunSetup) -> Sky:
+    """The run's sky under the receiver's profile, cached per process."""
+    key = _sky_key(setup, rx.profile)
+    sky = _SKIES.get(key)
+    if sky is None:
+        sky = compute_sky(rx, setup.t_unix_s, _antenna(setup))
+        _SKIES[key] = sky
+        while len(_SKIES) > SKY_CACHE_SIZE:
+            _SKIES.popitem(last=False)
+    else:
+        _SKIES.move_to_end(key)
+    return sky
+
+
+def simulate_job(job: EnsembleJob) -> Ensemble:
+    """Run the receiver over a run's epochs once per seed (the unit of work of an ensemble).
+
+    Each seed runs the receiver with ``numpy.random.default_rng(seed)`` over every real epoch
+    in one batch, as replay does, after a start at the run's power-on drawn from
+    ``default_rng([seed, 1])``.
+
+    Parameters
+    ----------
+    job : the run, the profile and the seeds
+
+    Returns
+    -------
+    ensemble : the seeds' outputs
+    """
+    setup, prof = job.setup, job.profile
+    rx = receiver_for(setup, prof)
+    sky = run_sky(rx, setup)
+    ant = _antenna(setup)
+    vel = np.where(setup.valid[:, None], setup.vel_enu_mps, 0.0)
+    n_sat = len(rx.ephemeris.prn)
+    out: dict[str, list[np.ndarray]] = {k: [] for k in Ensemble.__dataclass_fields__}
+    for seed in job.seeds:
+        rng = np.random.default_rng(seed)
+        # The start draws from a generator of its own: every kind of start leaves the epochs'
+        # random numbers alike (common random numbers across a cold_start fit's grid).
+        start_rng = np.random.default_rng([seed, 1])
+        state = (initial_state(prof, setup.power_on_unix_s, start_rng, n_sat)
+                 if np.isfinite(setup.power_on_unix_s) else ReceiverState())
+        fixes, _ = simulate(rx, setup.t_unix_s, ant, vel, setup.valid, state, rng, sky=sky)
+        out["seeds"].append(np.array([seed]))
+        out["lat_deg"].append(fixes.lat_deg)
+        out["lon_deg"].append(fixes.lon_deg)
+        out["alt_hae_m"].append(fixes.alt_msl_m + fixes.geoid_sep_m)
+        out["quality"].append(fixes.quality)
+        out["hdop"].append(fixes.hdop.astype(np.float32))
+        out["speed_mps"].append(fixes.speed_mps.astype(np.float32))
+        out["used"].append(fixes.used)
+        cn0 = np.where(fixes.in_view, fixes.cn0_dbhz, np.nan)
+        out["cn0_dbhz"].append(cn0.astype(np.float32))
+    return Ensemble(
+        seeds=np.concatenate(out["seeds"]),
+        **{k: np.stack(v) for k, v in out.items() if k != "seeds"},
+    )
+
+
+def geometry_job(setup: RunSetup) -> Geometry:
+    """Satellite directions and which direct paths cross a building, along a run.
+
+    A bare receiver (no effects; foliage neither blocks nor attenuates) gives the geometry, so
+    it is the same whatever profile is under test.
+    """
+    from virtualgps.profiles import FoliageParams, NlosParams, SkyParams
+
+    prof = Profile(name="geometry", sky=SkyParams(elevation_mask_deg=0.0, foliage="ignore"),
+                   foliage=FoliageParams(enabled=False), nlos=NlosParams(enabled=False))
+    rx = receiver_for(setup, prof)
+    sky = compute_sky(rx, setup.t_unix_s, _antenna(setup))
+    return Geometry(
+        prn=np.asarray(rx.ephemeris.prn),
+        az_deg=sky.az_deg.astype(np.float32),
+        el_deg=sky.el_deg.astype(np.float32),
+        crosses_building=sky.blocked & setup.valid[:, None],
+    )
+
+
+def split_seeds(seeds: tuple[int, ...], parts: int) -> list[tuple[int, ...]]:
+    """Split seeds into at most ``parts`` contiguous groups (for parallel jobs)."""
+    parts = max(1, min(parts, len(seeds)))
+    return [tuple(int(s) for s in g) for g in np.array_split(np.asarray(seeds), parts) if len(g)]
+
+
+def no_fix_fraction(ens: Ensemble) -> np.ndarray:
+    """(s,) share of epochs without a fix, per seed."""
+    return (ens.quality == QUALITY_NONE).mean(axis=1)
+
+
+def with_profile(job: EnsembleJob, profile: Profile) -> EnsembleJob:
+    """The same job under another profile."""
+    return replace(job, profile=profile)

@@ -1,0 +1,333 @@
+"""Real runs for the gap tool: a real receiver's NMEA log and its truth, read as they come.
+
+Logs are read the way receivers and loggers write them (:func:`virtualgps.nmea.
+nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
+types, binary noise, bad checksums, truncated lines, a midnight in the log); nothing raises on a
+bad line: every skipped line is counted by reason and reported. A fix is any GGA quality above
+0 with a position (phones write 7 on every fix). Epochs are put in time order, one per time.
+
+The truth is a pose log of DESIGN section 4 (any format, geodetic or scene ENU), ``static``
+(stood still at an unknown point: the run's median fix) or ``static:LAT,LON,ALT_HAE``. Where the
+truth moves, a constant clock offset between log and truth is estimated
+(:func:`estimate_time_offset_s`) and applied when it clearly improves the match.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps import geodesy, pose
+from virtualgps.exceptions import ConfigError, InputFileError
+from virtualgps.gap.metrics import median_position
+from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, parse_sentence, read_text_lines
+from virtualgps.receiver import Georef
+
+TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs between unknown
+MOVING_PATH_M = 30.0  # a truth whose path is longer than this "moves": its clock offset is sought
+OFFSET_MAX_S = 30.0
+OFFSET_MIN_GAIN = 0.9  # apply an offset only if it lowers the median distance by 10 % or more
+LATENCY_LIKE_S = 2.5  # offsets up to this are reported, not applied: they look like latency
+KNOWN = {"GGA", "RMC", "GSA", "GSV", "VTG", "GLL", "ZDA", "GNS", "GST", "TXT"}
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Where the antenna really was.
+
+    kind : "track" (a pose log), "static" (an unknown point: the run's median fix), or
+        "static_point" (``static:LAT,LON,ALT_HAE``)
+    track : the poses as read (geodetic or scene ENU frame), for "track"
+    lat_deg, lon_deg, alt_hae_m : the point, for "static_point" (degrees, metres HAE)
+    source : the spec or file it came from
+    """
+
+    kind: str
+    track: pose.PoseTrack | None = None
+    lat_deg: float = math.nan
+    lon_deg: float = math.nan
+    alt_hae_m: float = math.nan
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class RealRun:
+    """One real run: its log's epochs, its truth and what reading them found.
+
+    time_offset_s : real log time = truth time + time_offset_s
+    offset_info : how the offset was found ({"method", ...})
+    skipped : {reason: lines}; sentences : {sentence type: valid sentences read};
+    quality_codes : {GGA quality: epochs}
+    has_gsv : some GSV lists a GPS PRN (1-32) with an elevation; has_cn0 : some GPS SNR;
+    has_gsa : some GSA lists PRNs
+    """
+
+    name: str
+    path: Path
+    epochs: NmeaEpochs
+    truth: Truth
+    time_offset_s: float = 0.0
+    offset_info: dict = field(default_factory=dict)
+    skipped: dict = field(default_factory=dict)
+    sentences: dict = field(default_factory=dict)
+    quality_codes: dict = field(default_factory=dict)
+    has_gsv: bool = False
+    has_cn0: bool = False
+    has_gsa: bool = False
+
+
+def parse_truth(spec: str) -> Truth:
+    """Read a truth spec: ``static``, ``static:LAT,LON,ALT_HAE`` or a pose log path.
+
+    Raises
+    ------
+    ConfigError : a malformed ``static:`` spec (the message says the expected form)
+    InputFileError : an unreadable or malformed pose log
+    """
+    if spec == "static":
+        return Truth("static", source=spec)
+    if spec.startswith("static:"):
+        parts = spec[len("static:"):].split(",")
+        try:
+            lat, lon, alt = (float(p) for p in parts)
+        except ValueError:
+            raise ConfigError(f"--truth {spec!r}: expected static:LAT,LON,ALT_HAE (degrees, "
+                              "degrees, metres above the ellipsoid)") from None
+        if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and math.isfinite(alt)):
+            raise ConfigError(f"--truth {spec!r}: latitude must be within +-90 and longitude "
+                              "within +-180 degrees")
+        return Truth("static_point", None, lat, lon, alt, spec)
+    path = Path(spec)
+    if not path.exists():
+        raise ConfigError(f"--truth {spec!r}: no such file; give a pose log, 'static' or "
+                          "static:LAT,LON,ALT_HAE")
+    return Truth("track", pose.read_pose_log(path), source=spec)
+
+
+def _line_census(lines: list[str]) -> tuple[Counter, Counter]:
+    """Valid sentences per type, and lines skipped by reason (before grouping into epochs)."""
+    sentences: Counter = Counter()
+    skipped: Counter = Counter()
+    for raw in lines:
+        if "$" not in raw:
+            if raw.strip():
+                skipped["not_nmea"] += 1
+            continue
+        parsed = parse_sentence(raw)
+        if parsed is None:
+            star = raw.rfind("*")
+            skipped["truncated" if star < 0 or len(raw.rstrip()) - star < 3 else
+                    "bad_checksum"] += 1
+            continue
+        kind = parsed[0][-3:] if not parsed[0].startswith("P") else "proprietary"
+        if kind in KNOWN:
+            sentences[kind] += 1
+        else:
+            skipped["not_used" if kind == "proprietary" else f"unknown_{kind}"] += 1
+    return sentences, skipped
+
+
+def _take(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
+    """The epochs at the indices (or mask) ``keep``, every per-epoch array cut alike."""
+    n = len(epochs)
+    cut = {f.name: getattr(epochs, f.name)[keep] for f in fields(epochs)
+           if isinstance(getattr(epochs, f.name), np.ndarray)
+           and getattr(epochs, f.name).shape[:1] == (n,)}
+    return replace(epochs, **cut)
+
+
+def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
+    """Read a real NMEA log as time-ordered epochs, one per time.
+
+    Returns
+    -------
+    epochs : NmeaEpochs
+    skipped : {reason: lines}
+    sentences : {type: valid sentences}
+
+    Raises
+    ------
+    InputFileError : unreadable, empty, or no dated epoch with a fix (one clear line)
+    """
+    try:
+        lines = read_text_lines(path)
+    except OSError as e:
+        raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
+    if not any(ln.strip() for ln in lines):
+        raise InputFileError(path, "the log is empty")
+    sentences, skipped = _line_census(lines)
+    if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
+        raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes")
+    ep = nmea_epochs_from_lines(lines, path)
+    if ep.n_bad > sum(skipped.values()):
+        skipped["malformed_fields"] = ep.n_bad - skipped["bad_checksum"] - skipped["truncated"]
+    ok = np.isfinite(ep.t_unix_s)
+    order = np.argsort(np.where(ok, ep.t_unix_s, np.inf), kind="stable")
+    order = order[ok[order]]
+    t = ep.t_unix_s[order]
+    first = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
+    if (~first).any():
+        skipped["duplicate_epoch"] = int((~first).sum())
+    ep = _take(ep, order[first])
+    if not ((ep.quality > 0) & np.isfinite(ep.lat_deg)).any():
+        raise InputFileError(path, "no epoch of the log has a fix (GGA quality > 0 with a "
+                             "position)")
+    return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences)
+
+
+def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) -> RealRun:
+    """Read one run: its NMEA log and its truth, and estimate their clock offset.
+
+    Parameters
+    ----------
+    real_path : the real receiver's NMEA log
+    truth_spec : a pose log path, ``static`` or ``static:LAT,LON,ALT_HAE``
+    name : the run's name (default: the log's file stem)
+
+    Returns
+    -------
+    RealRun
+    """
+    path = Path(real_path)
+    ep, skipped, sentences = read_real_log(path)
+    truth = parse_truth(truth_spec)
+    gps = (ep.prn >= 1) & (ep.prn <= 32)
+    run = RealRun(
+        name=name or path.stem, path=path, epochs=ep, truth=truth,
+        skipped=skipped, sentences=sentences,
+        quality_codes={int(q): int(c) for q, c in zip(*np.unique(ep.quality, return_counts=True),
+                                                       strict=True)},
+        has_gsv=bool((ep.in_view[:, gps] & np.isfinite(ep.el_deg[:, gps])).any()),
+        has_cn0=bool(np.isfinite(ep.cn0_dbhz[:, gps]).any()),
+        has_gsa=bool((ep.sats_used_gsa >= 0).any()),
+    )
+    if truth.kind != "track":
+        return replace(run, offset_info={"method": "none", "reason": "static truth"})
+    if truth.track.frame != "geodetic":
+        return replace(run, offset_info={"method": "none",
+                                         "reason": "scene-frame truth (needs the scene)"})
+    fixed = (ep.quality > 0) & np.isfinite(ep.lat_deg)
+    offset, info = estimate_time_offset_s(ep.t_unix_s[fixed], ep.lat_deg[fixed],
+                                          ep.lon_deg[fixed], truth.track)
+    return replace(run, time_offset_s=offset, offset_info=info)
+
+
+def _horizontal_m(lat_deg, lon_deg, ref_lat_deg, ref_lon_deg) -> np.ndarray:
+    """Local horizontal distances, metres (equirectangular: fine over a few hundred metres)."""
+    r = 6371000.0
+    dn = np.radians(lat_deg - ref_lat_deg) * r
+    de = np.radians(lon_deg - ref_lon_deg) * r * np.cos(np.radians(ref_lat_deg))
+    return np.hypot(de, dn)
+
+
+def _median_dist(offset_s: float, t, lat, lon, track: pose.PoseTrack) -> float:
+    p, _, ok = pose.interpolate(track, t - offset_s, TRUTH_MAX_GAP_S)
+    if ok.sum() < 10:
+        return math.inf
+    return float(np.median(_horizontal_m(lat[ok], lon[ok], p[ok, 0], p[ok, 1])))
+
+
+def estimate_time_offset_s(
+    real_t_unix_s: np.ndarray, real_lat_deg: np.ndarray, real_lon_deg: np.ndarray,
+    truth: pose.PoseTrack, max_offset_s: float = OFFSET_MAX_S,
+) -> tuple[float, dict]:
+    """A constant clock offset between a real log and a moving geodetic truth.
+
+    The offset minimises the median horizontal distance between the real fixes and the truth
+    at ``t - offset``: a 1 s grid over +-max_offset_s, then golden-section refinement to 0.02 s
+    around the best. It is sought only where the truth moves (a path over MOVING_PATH_M), and
+    applied only when it lowers the distance by 10 % or more against no offset and exceeds
+    LATENCY_LIKE_S: a smaller lag cannot be told from the receiver's own output latency (the
+    ``latency`` effect, which the diagnosis then measures); it is reported either way.
+
+    Returns
+    -------
+    offset_s : float, real time = truth time + offset_s
+    info : {"method", "searched_s", "median_m_at_0", "median_m", "applied"}
+    """
+    xyz = truth.xyz
+    path_m = float(np.sum(_horizontal_m(xyz[1:, 0], xyz[1:, 1], xyz[:-1, 0], xyz[:-1, 1])))
+    if path_m < MOVING_PATH_M or real_t_unix_s.size < 30:
+        return 0.0, {"method": "none", "reason": f"the truth does not move ({path_m:.0f} m)"}
+    args = (real_t_unix_s, real_lat_deg, real_lon_deg, truth)
+    grid = np.arange(-max_offset_s, max_offset_s + 0.5, 1.0)
+    cost = np.array([_median_dist(o, *args) for o in grid])
+    k = int(np.argmin(cost))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = _median_dist(c, *args), _median_dist(d, *args)
+    while b - a > 0.02:
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = _median_dist(c, *args)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = _median_dist(d, *args)
+    best = float(round((a + b) / 2.0, 2))
+    at0, at_best = _median_dist(0.0, *args), _median_dist(best, *args)
+    # A lag of a second or two is what a receiver's own output latency looks like (the
+    # ``latency`` effect): it is reported, not removed; a larger one is a clock offset.
+    applied = bool(at_best <= OFFSET_MIN_GAIN * at0 and abs(best) > LATENCY_LIKE_S)
+    info = {"method": "median distance to the truth, grid then golden section",
+            "searched_s": [-max_offset_s, max_offset_s], "median_m_at_0": at0,
+            "median_m": at_best, "best_s": float(best), "applied": applied}
+    return (best if applied else 0.0), info
+
+
+def truth_positions(
+    run: RealRun, t_unix_s: np.ndarray, georef: Georef | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The truth at the real log's epochs (the clock offset applied).
+
+    Parameters
+    ----------
+    run : the run
+    t_unix_s : (n,) UTC seconds, the real epochs
+    georef : the scene origin (needed for a truth in the scene's ENU frame)
+
+    Returns
+    -------
+    lat_deg, lon_deg, alt_hae_m : (n,) float, the truth (NaN where unknown)
+    valid : (n,) bool, the truth is known (inside the truth's span, not in a gap over
+        TRUTH_MAX_GAP_S)
+    """
+    n = np.asarray(t_unix_s).size
+    tr = run.truth
+    if tr.kind == "static_point":
+        return (np.full(n, tr.lat_deg), np.full(n, tr.lon_deg), np.full(n, tr.alt_hae_m),
+                np.ones(n, bool))
+    if tr.kind == "static":
+        ep = run.epochs
+        ok = (ep.quality > 0) & np.isfinite(ep.lat_deg) & np.isfinite(ep.lon_deg)
+        sep = np.where(np.isfinite(ep.geoid_sep_m), ep.geoid_sep_m,
+                       geodesy.geoid_sep_m(np.nan_to_num(ep.lat_deg), np.nan_to_num(ep.lon_deg)))
+        alt = np.where(np.isfinite(ep.alt_msl_m), ep.alt_msl_m + sep, np.nan)
+        has_alt = ok & np.isfinite(alt)
+        lat, lon, h = median_position(ep.lat_deg[ok], ep.lon_deg[ok],
+                                      np.where(has_alt, alt, 0.0)[ok])
+        if not has_alt.any():
+            h = 0.0
+        return np.full(n, lat), np.full(n, lon), np.full(n, h), np.ones(n, bool)
+    track = tr.track
+    if track.frame != "geodetic":
+        if georef is None:
+            raise ConfigError(f"--truth {tr.source}: a truth in scene coordinates (x, y, z) "
+                              "needs a scene with a georeference (--scene)")
+        track = _enu_track_to_geodetic(track, georef)
+    p, _, ok = pose.interpolate(track, np.asarray(t_unix_s, float) - run.time_offset_s,
+                                TRUTH_MAX_GAP_S)
+    return p[:, 0], p[:, 1], p[:, 2], ok
+
+
+def _enu_track_to_geodetic(track: pose.PoseTrack, georef: Georef) -> pose.PoseTrack:
+    """A scene-frame track as geodetic poses (lat, lon, alt HAE)."""
+    ecef = geodesy.enu_to_ecef(track.xyz, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+    lat, lon, alt = geodesy.ecef_to_geodetic(ecef)
+    return replace(track, frame="geodetic", xyz=np.stack([lat, lon, alt], axis=-1))

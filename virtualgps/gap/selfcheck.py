@@ -1,0 +1,339 @@
+"""The withheld-effect check of the diagnosis itself (``virtualgps gap --selfcheck``, DESIGN
+section 7.4).
+
+For every effect the check can inject: pseudo-real logs are made by the simulator with the
+effect switched on at known parameters (drawn per trial), on a fresh trajectory (static or
+moving, open sky or the bundled campus, a time drawn near the TLE set's epoch) with a fresh
+seed, written as NMEA and read back like a real log; then the same diagnosis as ``virtualgps
+gap`` runs on them with the effect withheld from the profile. A trial succeeds when the
+injected effect is ranked first; the confusion matrix counts injected x ranked first, and the
+recovered parameters and the held-out shrinkage are reported.
+
+The profile under test is ``holux-m1000`` with the effect switched off (for its own effects) or
+as it is (for the effects it lacks); ``noise_level`` and ``dop_error``, which change the
+baseline error, are checked on ``usarsim``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from virtualgps import geodesy, nmea, pose
+from virtualgps.gap import diagnose as dg
+from virtualgps.gap import effects as fx
+from virtualgps.profiles import load_profile_dict
+from virtualgps.receiver import Georef, Receiver
+from virtualgps.replay import epoch_grid, run_replay
+
+DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
+SEED_BASE = 100_000  # pseudo-real seeds lie far from the diagnosis' seeds 0..N
+
+
+@dataclass(frozen=True)
+class Injection:
+    """How one effect is injected.
+
+    base : the profile under test; withhold : tables that switch the effect off in it
+    draw : rng -> the injected tables (known parameters)
+    scenarios : the trajectories it is checked on (cycled over trials)
+    """
+
+    base: str
+    withhold: dict
+    draw: Callable[[np.random.Generator], dict]
+    scenarios: tuple[str, ...]
+
+
+def _u(rng: np.random.Generator, lo: float, hi: float, nd: int = 1) -> float:
+    return round(float(rng.uniform(lo, hi)), nd)
+
+
+INJECTIONS: dict[str, Injection] = {
+    "correlated_error": Injection(
+        "holux-m1000", {"correlated_error": {"enabled": False}},
+        lambda r: {"correlated_error": {"enabled": True, "domain": "range",
+                                        "tau_s": _u(r, 80, 400, 0), "sigma_m": _u(r, 2.5, 5)}},
+        ("static_open", "moving_open", "static_built")),
+    "cold_start": Injection(
+        "holux-m1000", {"cold_start": {"enabled": False}},
+        lambda r: {"cold_start": {"enabled": True, "power_on": "cold",
+                                  "ttff_cold_s": _u(r, 25, 60, 0)}},
+        ("static_open", "moving_open", "static_built")),
+    "cn0_tracking": Injection(
+        "holux-m1000", {"cn0_tracking": {"enabled": False}},
+        lambda r: {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": _u(r, 35, 41, 0),
+                                    "horizon_loss_db": _u(r, 16, 24, 0)}},
+        ("static_open", "moving_open", "static_built")),
+    "nlos": Injection(
+        "holux-m1000", {"nlos": {"enabled": False}},
+        lambda r: {"nlos": {"enabled": True, "scattering": True, "max_dist_m": 50.0,
+                            "reflection_loss_db": _u(r, 4, 8, 0)}},
+        ("moving_built",)),
+    "multipath": Injection(
+        "holux-m1000", {},
+        lambda r: {"multipath": {"enabled": True, "sigma_m": _u(r, 10, 20), "tau_s": 30.0}},
+        ("moving_built",)),
+    "latency": Injection(
+        "holux-m1000", {},
+        lambda r: {"latency": {"enabled": True, "latency_s": _u(r, 0.5, 2.0, 2)}},
+        ("moving_open", "moving_built")),
+    "nav_filter": Injection(
+        "holux-m1000", {},
+        lambda r: {"nav_filter": {"enabled": True, "tau_s": _u(r, 1.5, 4.0)}},
+        ("moving_open", "moving_built")),
+    "static_hold": Injection(
+        "holux-m1000", {},
+        lambda r: {"static_hold": {"enabled": True, "threshold_mps": _u(r, 0.6, 1.5)}},
+        ("moving_open", "moving_built")),
+    "sbas": Injection(
+        "holux-m1000", {},
+        lambda r: {"sbas": {"enabled": True}},
+        ("static_open", "moving_open", "static_built")),
+    "elevation_mask": Injection(
+        "holux-m1000", {},
+        lambda r: {"sky": {"elevation_mask_deg": _u(r, 12, 20, 0)}},
+        ("static_open", "moving_open")),
+    "noise_level": Injection(
+        "usarsim", {},
+        lambda r: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
+        ("static_open", "moving_open")),
+    "dop_error": Injection(
+        "usarsim", {},
+        lambda r: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
+        ("static_open", "moving_open")),
+}
+
+
+# --- trajectories ------------------------------------------------------------------------------
+
+
+def _moving_enu(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
+    """(n, 3) ENU positions of a vehicle-like path: legs at 2-10 m/s with turns, slow spells
+    (0-0.3 m/s) and stops in between (accelerations, turns and crawls: what latency,
+    nav_filter and static_hold show up in)."""
+    n = t.size
+    speed = np.zeros(n)
+    heading = np.zeros(n)
+    i, h = 0, rng.uniform(0, 2 * np.pi)
+    while i < n:
+        leg = int(rng.uniform(40, 120))
+        v = rng.uniform(2.0, 10.0)
+        turn = rng.uniform(-0.05, 0.05)  # rad/s
+        k = np.arange(min(leg, n - i))
+        speed[i : i + k.size] = v * np.minimum(1.0, (k + 1) / 8.0)  # accelerate over ~8 s
+        heading[i : i + k.size] = h + turn * k
+        h = heading[i + k.size - 1]
+        i += k.size
+        slow = int(rng.uniform(10, 30))
+        speed[i : i + slow] = rng.uniform(0.0, 0.3)
+        heading[i : i + slow] = h
+        i += slow
+    dt = np.diff(t, prepend=t[0])
+    east = np.cumsum(speed * np.sin(heading) * dt)
+    north = np.cumsum(speed * np.cos(heading) * dt)
+    return np.stack([east, north, np.zeros(n)], axis=1)
+
+
+def _walk_in_scene(scene, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
+    """(n, 3) ENU: along the scene's demo waypoints (streets between the buildings), from a
+    random start, at 1-4 m/s with stops, 1.5 m above the ground."""
+    wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)
+    loop = np.vstack([wp, wp[:1]])
+    seg = np.linalg.norm(np.diff(loop[:, :2], axis=0), axis=1)
+    s_knots = np.concatenate([[0.0], np.cumsum(seg)])
+    speed = np.where((t - t[0]) % 120.0 < 100.0, rng.uniform(1.0, 4.0), 0.0)
+    s = (rng.uniform(0, s_knots[-1]) + np.cumsum(speed * np.diff(t, prepend=t[0]))) % s_knots[-1]
+    xy = np.stack([np.interp(s, s_knots, loop[:, a]) for a in (0, 1)], axis=1)
+    up = scene.ground_height_m(xy[:, 0], xy[:, 1]) + 1.5
+    return np.column_stack([xy, up])
+
+
+def _static_in_scene(scene, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 3) ENU: a random point near the demo walk 3-10 m from a wall (where buildings block
+    and reflect), 1.5 m above the ground."""
+    from virtualgps.scene import CLASS_OCCLUDER
+    from virtualgps.signals import Facades
+
+    wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)
+    sel = scene.face_class == CLASS_OCCLUDER
+    walls = Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
+    a = rng.integers(0, len(wp), 64)
+    xy = wp[a, :2] + rng.uniform(0, 1, (64, 1)) * (wp[(a + 1) % len(wp), :2] - wp[a, :2])
+    xy = xy + rng.normal(0, 8, (64, 2))
+    up = scene.ground_height_m(xy[:, 0], xy[:, 1]) + 1.5
+    pts = np.column_stack([xy, up])
+    d = walls.wall_dist_m(pts, 30.0)
+    good = np.flatnonzero((d >= 3.0) & (d <= 10.0))
+    k = int(good[0]) if good.size else int(np.argmin(np.abs(d - 6.0)))
+    return np.tile(pts[k], (n, 1))
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One pseudo-real run, written to files the diagnosis reads."""
+
+    effect: str
+    index: int
+    scenario: str
+    injected: dict
+    real: Path
+    truth: str
+    scene: str | None
+    tle: str
+    profile: Path
+
+
+def make_trial(effect: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
+               open_tle: str) -> Trial:
+    """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial."""
+    from virtualgps.ephemeris import load_tle
+
+    inj = INJECTIONS[effect]
+    rng = np.random.default_rng([SEED_BASE, list(INJECTIONS).index(effect), index])
+    scenario = inj.scenarios[index % len(inj.scenarios)]
+    built = scenario.endswith("built")
+    tle = scene_tle if built else open_tle
+    eph = load_tle(tle)
+    t0 = float(np.floor(eph.epoch_center_unix_s + rng.uniform(-2, 2) * 86400.0))
+    t = t0 + np.arange(DURATION_S + 1.0)
+    if built:
+        georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
+        enu = (_walk_in_scene(scene, rng, t) if scenario.startswith("moving")
+               else _static_in_scene(scene, rng, t.size))
+    else:
+        georef = Georef(round(float(rng.uniform(-55, 55)), 4),
+                        round(float(rng.uniform(-180, 180)), 4), 100.0)
+        enu = _moving_enu(rng, t) if scenario.startswith("moving") else np.zeros((t.size, 3))
+    base, _ = load_profile_dict(inj.base)
+    withheld = fx.apply(base, inj.withhold)
+    injected = inj.draw(rng)
+    real_prof = fx.build(fx.apply(withheld, injected), f"selfcheck {effect}")
+    rx = Receiver(real_prof, eph, scene if built else None, georef)
+    track = pose.PoseTrack(t, "enu", enu, np.full(enu.shape, np.nan))
+    buf = io.BytesIO()
+    fmt = nmea.NmeaFormat.from_dict(real_prof.nmea)
+    run_replay(rx, track, epoch_grid(t, real_prof.rate_hz, None), fmt, buf,
+               SEED_BASE + 1000 * list(INJECTIONS).index(effect) + index)
+    tag = f"{effect}-{index}"
+    work.mkdir(parents=True, exist_ok=True)
+    real = work / f"{tag}.nmea"
+    real.write_bytes(buf.getvalue())
+    ecef = geodesy.enu_to_ecef(enu, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+    lat, lon, alt = geodesy.ecef_to_geodetic(ecef)
+    if scenario.startswith("static"):
+        truth = f"static:{lat[0]:.9f},{lon[0]:.9f},{alt[0]:.3f}"
+    else:
+        truth_path = work / f"{tag}-truth.jsonl"
+        truth_path.write_text("".join(
+            json.dumps({"t": float(ti), "lat": float(a), "lon": float(b), "alt": float(c)}) + "\n"
+            for ti, a, b, c in zip(t, lat, lon, alt, strict=True)))
+        truth = str(truth_path)
+    prof_path = work / f"{tag}-profile.toml"
+    withheld = dict(withheld, name=f"{inj.base}-without-{effect}")
+    prof_path.write_text(fx.to_toml(withheld), encoding="utf-8")
+    return Trial(effect, index, scenario, injected, real, truth,
+                 scene_dir if built else None, tle, prof_path)
+
+
+def _recovered(effect: str, report: dict) -> dict:
+    for e in report["effects"]:
+        if e["name"] == effect:
+            return dict(e["params"])
+    return {}
+
+
+def _flat(tables: dict) -> dict:
+    out: dict[str, Any] = {}
+    for t in tables.values():
+        out.update({k: v for k, v in t.items() if k != "enabled"})
+    return out
+
+
+def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
+        progress: Callable[[str], None] | None = None) -> dict:
+    """Run the self-check and write ``selfcheck.json`` and ``report.html`` into ``out_dir``.
+
+    Parameters
+    ----------
+    opts : diagnosis options (``effects`` restricts the injected effects)
+    trials : trials per effect
+    out_dir : output folder (its ``work/`` subfolder keeps the pseudo-real logs)
+    progress : called with a short text as trials finish
+
+    Returns
+    -------
+    result : the ``selfcheck.json`` content
+    """
+    from virtualgps import report as rp
+    from virtualgps.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.ephemeris import default_tle_path
+    from virtualgps.gap import tool
+    from virtualgps.scene import load_scene
+
+    out = Path(out_dir)
+    work = out / "work"
+    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
+    scene = load_scene(scene_dir)
+    scene_tle = str(scene.tle_path)
+    open_tle = str(default_tle_path())
+    names = [e for e in (opts.effects or tuple(INJECTIONS)) if e in INJECTIONS]
+    diag_opts = replace(opts, effects=None)
+    rows = []
+    for effect in names:
+        for i in range(trials):
+            tr = make_trial(effect, i, work, scene, scene_dir, scene_tle, open_tle)
+            inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene=tr.scene or "none",
+                                 tle=tr.tle, profile=str(tr.profile))
+            report, _, _ = tool.diagnose(inp, diag_opts)
+            ranked = [e["name"] for e in report["effects"]]
+            accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
+            first = accepted[0] if accepted else "none"
+            rows.append({
+                "injected": effect, "scenario": tr.scenario, "params": _flat(tr.injected),
+                "ranked": ranked, "accepted": accepted, "ranked_first": first,
+                "recovered": _recovered(effect, report),
+                "gap_before": report["gap_baseline"],
+                "gap_after": report["gap_final"],
+                "real": str(tr.real), "truth": tr.truth,
+            })
+            if progress:
+                progress(f"self-check {effect} trial {i + 1}/{trials}: ranked first {first}")
+    confusion: dict[str, dict[str, int]] = {}
+    for r in rows:
+        c = confusion.setdefault(r["injected"], {})
+        c[r["ranked_first"]] = c.get(r["ranked_first"], 0) + 1
+    summary = {}
+    for effect in names:
+        mine = [r for r in rows if r["injected"] == effect]
+        hits = sum(r["ranked_first"] == effect for r in mine)
+        summary[effect] = {"trials": len(mine), "ranked_first": hits,
+                           "share": hits / len(mine) if mine else float("nan")}
+    n = len(rows)
+    wrong = sum(r["ranked_first"] not in (r["injected"],) for r in rows)
+    result = {"trials": rows, "confusion": confusion, "summary": summary,
+              "share_ranked_first": (n - wrong) / n if n else float("nan"),
+              "share_other_first": wrong / n if n else float("nan"),
+              "seeds": opts.seeds, "fit_seeds": opts.n_fit}
+    out.mkdir(parents=True, exist_ok=True)
+    rp.write_json(result, out / "selfcheck.json")
+    rp.write_selfcheck_html(result, out / "report.html")
+    return result
+
+
+def summary_lines(result: dict) -> list[str]:
+    """The terminal summary: per effect, how often it was ranked first."""
+    lines = [f"self-check: {len(result['trials'])} trials, injected effect ranked first in "
+             f"{100 * result['share_ranked_first']:.0f} %, another in "
+             f"{100 * result['share_other_first']:.0f} %"]
+    for effect, s in result["summary"].items():
+        others = {k: v for k, v in result["confusion"][effect].items() if k != effect}
+        lines.append(f"  {effect}: {s['ranked_first']}/{s['trials']} first"
+                     + (f" (else {others})" if others else ""))
+    return lines

@@ -1,0 +1,568 @@
+"""Where the gap lies: the DESIGN section 7.1 metrics of a real run against its ensemble, per
+segment, and the scalar gap score.
+
+A run is judged as a whole, never epoch by epoch: epochs are strongly correlated (an error
+decorrelates over minutes, a satellite is tracked or not for a whole pass), so each statistic
+is computed over a segment of the real run and over the same segment of every simulated seed,
+and the real value is a located gap when it falls outside the seeds' 2.5-97.5 % band (the
+ensemble percentile of the run's statistic, DESIGN 7.5). Satellite statistics are per PRN over
+a segment, so a pass counts once however many epochs it lasts.
+
+The scalar gap score (README, "The gap score"): the mean over the score metrics assessed on a
+unit of data (a run, or a time block of a single run) of a per-metric distance between the real
+statistic and the ensemble median: ``|ln((real + c) / (sim + c))|`` for scale statistics
+(errors, times, counts, HDOP), ``|real - sim| / scale`` for shares and levels, each capped at
+:data:`D_CAP`; lower is better, 0 is no detectable disagreement.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from virtualgps.gap.metrics import (
+    INV_E,
+    autocorrelation,
+    changes_per_minute,
+    errors_enu_m,
+    median_position,
+    to_regular_grid,
+)
+
+STARTUP_S = 120.0  # the start-up segment: this long after power-on
+MOVING_MPS = 0.3  # truth speed above which an epoch is "moving"
+SECTOR_AZ_DEG = (0, 90, 180, 270, 360)
+SECTOR_EL_DEG = (0, 30, 60, 90)
+BAND = (2.5, 97.5)
+D_CAP = 3.0
+MIN_AUTOCORR_EPOCHS = 120  # a 1/e time needs a record several times longer than itself
+
+# Score metrics: (kind, constant). "log": |ln((r + c) / (s + c))|; "lin": |r - s| / c;
+# "pair": a real-vs-simulated disagreement beyond the seeds' own, / c.
+SCORE: dict[str, tuple[str, float]] = {
+    "cep50_m": ("log", 0.5),
+    "r95_m": ("log", 0.5),
+    "autocorr_s": ("log", 2.0),
+    "sats_used_mean": ("log", 0.5),
+    "used_changes_per_min": ("log", 0.5),
+    "tracked_agreement": ("pair", 0.1),
+    "tracked_share": ("lin", 0.05),
+    "cn0_median_dbhz": ("lin", 3.0),
+    "hdop_median": ("log", 0.2),
+    "fix_fraction": ("lin", 0.1),
+    "ttff_s": ("log", 5.0),
+    "lag_s": ("lin", 0.25),
+    "error_step_m": ("log", 0.1),
+    "frozen_fraction": ("lin", 0.1),
+    "dgps_fraction": ("lin", 0.25),
+    "used_el_p05_deg": ("lin", 3.0),
+}
+# Located (the where table) but not scored: eq4_deg compares coordinates epoch by epoch (the
+# paper's view, not a statistic of the receiver); bias_m is one sample per run of the slowest
+# error and of the truth's own offset (a map-picked point, a lever arm), while CEP50 and R95
+# already measure the error against the truth.
+WHERE_ONLY = ("eq4_deg", "bias_m")
+
+
+@dataclass(frozen=True)
+class Obs:
+    """Receiver output over ``n`` epochs and ``k`` satellites, for ``s`` seeds (1: a real log).
+
+    lat_deg, lon_deg, alt_hae_m : (s, n) float, NaN without a fix
+    quality : (s, n) int, GGA quality (> 0: a fix)
+    hdop : (s, n) float; sats_used : (s, n) float, NaN where unknown
+    speed_mps : (s, n) float, reported speed
+    tracked : (s, n, k) bool, the satellite has an SNR; cn0_dbhz : (s, n, k) float
+    used : (s, n, k) bool (GSA)
+    """
+
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_hae_m: np.ndarray
+    quality: np.ndarray
+    hdop: np.ndarray
+    sats_used: np.ndarray
+    speed_mps: np.ndarray
+    tracked: np.ndarray
+    cn0_dbhz: np.ndarray
+    used: np.ndarray
+
+    @property
+    def fixed(self) -> np.ndarray:
+        """(s, n) bool, a fix with a position."""
+        return (self.quality > 0) & np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
+
+
+@dataclass(frozen=True)
+class RunView:
+    """A real run aligned with its simulation: ``n`` real epochs, ``k`` GPS satellites.
+
+    name : the run's name; t_unix_s : (n,) UTC seconds; power_on_unix_s : the log's start
+    truth_lat_deg, truth_lon_deg, truth_alt_hae_m : (n,) the truth (NaN where unknown)
+    reference : "truth" (errors about the truth) or "median" (static at an unknown point:
+        errors about each run's own median fix; bias not assessed)
+    vel_enu_mps : (n, 3) truth velocity; near_building : (n,) bool, some satellite above the
+        mask has its direct path through a building
+    prn : (k,); az_deg, el_deg : (n, k) degrees
+    sat_ok : (n, k) bool, comparable: above the mask and in an epoch where the real log lists
+        satellites (GSV)
+    assess : the real log's support: {"gsv": bool, "cn0": bool, "gsa": bool}
+    real : Obs with s = 1
+    started : the log starts at power-on (its first epoch has no fix); else the receiver was
+        already running and the start-up is not assessed
+    quantum_min : the resolution of the log's printed positions, arc-minutes (1e-4 for
+        ``ddmm.mmmm``; 0: unknown); simulated fixes are rounded alike before comparing
+    """
+
+    name: str
+    t_unix_s: np.ndarray
+    power_on_unix_s: float
+    truth_lat_deg: np.ndarray
+    truth_lon_deg: np.ndarray
+    truth_alt_hae_m: np.ndarray
+    reference: str
+    vel_enu_mps: np.ndarray
+    near_building: np.ndarray
+    prn: np.ndarray
+    az_deg: np.ndarray
+    el_deg: np.ndarray
+    sat_ok: np.ndarray
+    assess: dict
+    real: Obs
+    started: bool = True
+    quantum_min: float = 0.0
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(n,) bool, the truth is known at the epoch (only these epochs are compared)."""
+        return np.isfinite(self.truth_lat_deg) & np.isfinite(self.truth_lon_deg)
+
+    @property
+    def speed_mps(self) -> np.ndarray:
+        """(n,) truth speed over ground, m/s (0 where unknown)."""
+        v = np.nan_to_num(self.vel_enu_mps)
+        return np.hypot(v[:, 0], v[:, 1])
+
+
+def position_quantum_min(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
+    """The resolution a log prints positions with, in arc-minutes (a power of ten): the
+    smallest step between its fixes (MTK's ``ddmm.mmmm``: 1e-4; phones print 6 or 7 decimals).
+    0.0 when it cannot be told (fewer than two distinct fixes)."""
+    m = np.concatenate([np.asarray(lat_deg, float), np.asarray(lon_deg, float)]) * 60.0
+    d = np.abs(np.diff(m[np.isfinite(m)]))
+    d = d[d > 1e-9]
+    if d.size == 0:
+        return 0.0
+    return float(10.0 ** np.round(np.log10(d.min())))
+
+
+def quantize(obs: Obs, quantum_min: float) -> Obs:
+    """Simulated fixes printed like the real log's: latitude and longitude rounded to
+    ``quantum_min`` arc-minutes (identical fixes in a row then appear as in the log)."""
+    if not quantum_min > 0:
+        return obs
+    def rnd(x: np.ndarray) -> np.ndarray:
+        return np.round(x * 60.0 / quantum_min) * quantum_min / 60.0
+    return replace(obs, lat_deg=rnd(obs.lat_deg), lon_deg=rnd(obs.lon_deg))
+
+
+def errors_enu(view: RunView, obs: Obs) -> np.ndarray:
+    """(s, n, 3) ENU error of each fix, metres: about the truth, or about the seed's (the
+    log's) own median fix for a static run at an unknown point."""
+    s = obs.lat_deg.shape[0]
+    out = np.empty(obs.lat_deg.shape + (3,))
+    for i in range(s):
+        lat, lon, alt = obs.lat_deg[i], obs.lon_deg[i], obs.alt_hae_m[i]
+        if view.reference == "truth":
+            ref = (view.truth_lat_deg, view.truth_lon_deg, view.truth_alt_hae_m)
+        else:
+            ok = obs.fixed[i]
+            ref = median_position(lat[ok], lon[ok], alt[ok]) if ok.any() else (0.0, 0.0, 0.0)
+        out[i] = errors_enu_m(lat, lon, alt, *ref)
+    out[~obs.fixed] = np.nan
+    return out
+
+
+def row_quantile(x: np.ndarray, q: float) -> np.ndarray:
+    """Quantile ``q`` (0-1, linear interpolation as ``numpy.quantile``) of each row of (s, m)
+    data, NaN left out; NaN for empty rows. (``numpy.nanquantile`` along an axis loops over the
+    rows in Python: 100x slower on ensembles.)"""
+    x = np.asarray(x, dtype=float)
+    n = np.isfinite(x).sum(axis=1)
+    xs = np.sort(x, axis=1)  # NaN sort last
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    r = np.arange(x.shape[0])
+    v = xs[r, lo] + (pos - lo) * (xs[r, hi] - xs[r, lo]) if x.shape[1] else np.zeros(len(n))
+    return np.where(n > 0, v, np.nan)
+
+
+def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top: float
+                    ) -> np.ndarray:
+    """Quantile ``q`` of each row's masked values of (s, ...) data in [0, top], to ``step``
+    (a histogram per row: ensembles of C/N0 or elevations hold ~10^5 values a seed).
+
+    Returns (s,) float, NaN for rows without a value (the lower of the two middle values'
+    bins for an even count, like an order statistic, not interpolated)."""
+    s = x.shape[0]
+    nb = int(round(top / step)) + 1
+    mask = np.broadcast_to(mask, x.shape)
+    rows = np.nonzero(mask)[0]
+    b = np.clip(np.rint(x[mask] / step), 0, nb - 1)
+    b = np.where(np.isfinite(b), b, 0).astype(np.int64)
+    counts = np.bincount(rows * nb + b, minlength=s * nb).reshape(s, nb)
+    cum = np.cumsum(counts, axis=1)
+    n = cum[:, -1]
+    k = np.floor(q * np.maximum(n - 1, 0))
+    idx = (cum <= k[:, None]).sum(axis=1)
+    return np.where(n > 0, np.minimum(idx, nb - 1) * step, np.nan)
+
+
+def _rowmean(x: np.ndarray) -> np.ndarray:
+    n = np.isfinite(x).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.nansum(x, axis=1) / n, np.nan)
+
+
+def _autocorr_s(t: np.ndarray, err_h: np.ndarray) -> float:
+    """1/e time of a (m, 2) east/north error series (m epochs at times t), NaN if too short."""
+    ok = np.isfinite(err_h).all(axis=1)
+    if ok.sum() < MIN_AUTOCORR_EPOCHS:
+        return float("nan")
+    steps = np.diff(t[ok])
+    dt = float(np.median(steps))
+    _, grid = to_regular_grid(t[ok], err_h[ok], dt)
+    max_lag = max(1, min(grid.shape[0] // 2, grid.shape[0] - 1))
+    rho = autocorrelation(grid, max_lag)
+    below = np.flatnonzero(rho[1:] < INV_E)
+    if below.size == 0:
+        return float("nan")
+    k = int(below[0]) + 1
+    r0, r1 = rho[k - 1], rho[k]
+    return float((k - 1 + (r0 - INV_E) / (r0 - r1)) * dt) if np.isfinite(r0) else k * dt
+
+
+def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) -> tuple:
+    """Per-PRN tracked share over a segment.
+
+    Parameters
+    ----------
+    tracked : (s, n, k) bool
+    sat_mask : (n, k) bool, the satellite-epochs compared
+
+    Returns
+    -------
+    frac : (s, k) float, tracked share of each PRN's compared epochs (NaN: none)
+    weight : (k,) int, compared epochs per PRN
+    """
+    w = sat_mask.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = (tracked & sat_mask[None]).sum(axis=1) / w[None, :]
+    return np.where(w[None, :] > 0, frac, np.nan), w
+
+
+def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray) -> np.ndarray:
+    """Per PRN over a segment: compared satellite-epochs, tracked by the real receiver, tracked
+    by the simulation (mean over seeds). Pooled over held-out units these give the per-PRN
+    tracking disagreement (:func:`pooled_tracking_disagreement`).
+
+    Returns (3, k) float (zeros without GSV/SNR in the real log)
+    """
+    out = np.zeros((3, view.prn.size))
+    if not (view.assess.get("gsv") and view.assess.get("cn0")):
+        return out
+    m = view.sat_ok & (epochs & view.valid)[:, None]
+    out[0] = m.sum(axis=0)
+    out[1] = (view.real.tracked[0] & m).sum(axis=0)
+    out[2] = (sims.tracked & m[None]).sum(axis=1).mean(axis=0)
+    return out
+
+
+def pooled_tracking_disagreement(counts: list[np.ndarray]) -> float:
+    """Per-PRN tracking disagreement: sum over PRNs of |real - simulated tracked epochs| over
+    the compared satellite-epochs, pooled over units ((3, k) arrays of :func:`prn_tracking`).
+    NaN without any compared satellite-epoch."""
+    c = np.sum(counts, axis=0)
+    return float(np.abs(c[1] - c[2]).sum() / c[0].sum()) if c[0].sum() > 0 else float("nan")
+
+
+def _disagreement(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Epoch-weighted mean |fa - fb| over PRNs; (s,) from (s, k) pairs."""
+    ok = (w > 0) & np.isfinite(fa).all(axis=0) & np.isfinite(fb).all(axis=0)
+    if not ok.any():
+        return np.full(fa.shape[0], np.nan)
+    return (np.abs(fa - fb)[:, ok] * w[ok]).sum(axis=1) / w[ok].sum()
+
+
+def _dt(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if t.size > 1 else 1.0
+
+
+def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) -> np.ndarray:
+    """How far the fixes lag behind the truth, in seconds: the least-squares L of
+    e_k = b - L v_k over the epochs (horizontal error e, truth velocity v, a constant bias b
+    per seed). A fix describing where the antenna was L seconds earlier (``latency``), or a
+    low-pass filter of time constant L at constant velocity (``nav_filter``), gives L; a slowly
+    varying error adds little, as the vehicle turns and stops.
+
+    err_enu_m : (s, n, 3); vel_enu_mps : (n, 3); epochs : (n,) bool; returns (s,) seconds
+    """
+    out = np.full(err_enu_m.shape[0], np.nan)
+    for i, e in enumerate(err_enu_m):
+        ok = epochs & np.isfinite(e[:, :2]).all(axis=1)
+        if ok.sum() < 30:
+            continue
+        v = vel_enu_mps[ok, :2]
+        y = e[ok, :2]
+        vc, yc = v - v.mean(axis=0), y - y.mean(axis=0)
+        den = float(np.sum(vc * vc))
+        if den > 0:
+            out[i] = -float(np.sum(vc * yc)) / den
+    return out
+
+
+def _eq4_deg(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
+    """The paper's Eq. 4 per epoch: sqrt(dlat^2 + dlon^2), degrees; (s, m)."""
+    return np.hypot(a_lat - b_lat, a_lon - b_lon)
+
+
+@dataclass(frozen=True)
+class SegmentStats:
+    """The metrics of one segment: real value and per-seed values (s,).
+
+    real : {metric: float}; sim : {metric: (s,) float}; pair : the real-vs-simulated values of
+    the pairwise metrics ({metric: (s,)}); for those ``sim`` holds simulated-vs-simulated
+    values (seed i against seed i + 1)
+    """
+
+    real: dict[str, float]
+    sim: dict[str, np.ndarray]
+    pair: dict[str, np.ndarray]
+
+
+def segment_stats(
+    view: RunView,
+    sims: Obs,
+    err_real: np.ndarray,
+    err_sim: np.ndarray,
+    epochs: np.ndarray,
+    sats: np.ndarray | None = None,
+    metrics: Iterable[str] | None = None,
+) -> SegmentStats:
+    """Every metric of DESIGN 7.1 that the segment and the real log support.
+
+    Parameters
+    ----------
+    view : the run; sims : its ensemble (s seeds)
+    err_real : (1, n, 3), err_sim : (s, n, 3) ENU errors (:func:`errors_enu`)
+    epochs : (n,) bool, the segment's epochs
+    sats : (n, k) bool or None, the segment's satellite-epochs (sky sectors, one PRN);
+        None: every comparable one in the segment's epochs
+    metrics : restrict to these names (None: all)
+
+    Returns
+    -------
+    SegmentStats (metrics the data cannot support are left out)
+    """
+    want = set(metrics) if metrics is not None else None
+
+    def wanted(name: str) -> bool:
+        return want is None or name in want
+
+    real, sim, pair = {}, {}, {}
+    t = view.t_unix_s
+    epochs = epochs & view.valid
+    sat_mask = view.sat_ok & epochs[:, None] if sats is None else view.sat_ok & sats
+    position = sats is None and epochs.any()
+    rf, sf = view.real.fixed[:, epochs], sims.fixed[:, epochs]
+
+    def put(name: str, r: np.ndarray, s: np.ndarray) -> None:
+        if np.isfinite(r[0]):
+            real[name], sim[name] = float(r[0]), s
+
+    if position:
+        eh_r = np.hypot(err_real[:, epochs, 0], err_real[:, epochs, 1])
+        eh_s = np.hypot(err_sim[:, epochs, 0], err_sim[:, epochs, 1])
+        if wanted("cep50_m"):
+            put("cep50_m", row_quantile(eh_r, 0.5), row_quantile(eh_s, 0.5))
+        if wanted("r95_m"):
+            put("r95_m", row_quantile(eh_r, 0.95), row_quantile(eh_s, 0.95))
+        if view.reference == "truth" and wanted("bias_m"):
+            def bias(e: np.ndarray) -> np.ndarray:
+                m = np.stack([_rowmean(e[:, :, j]) for j in (0, 1)], axis=-1)
+                return np.hypot(m[:, 0], m[:, 1])
+            put("bias_m", bias(err_real[:, epochs]), bias(err_sim[:, epochs]))
+        if wanted("autocorr_s"):
+            te = t[epochs]
+            r = np.array([_autocorr_s(te, err_real[0, epochs, :2])])
+            if np.isfinite(r[0]):
+                put("autocorr_s", r, np.array([_autocorr_s(te, e[epochs, :2]) for e in err_sim]))
+        if wanted("sats_used_mean"):
+            def used_mean(o: Obs, f: np.ndarray) -> np.ndarray:
+                return _rowmean(np.where(f, o.sats_used[:, epochs], np.nan))
+            put("sats_used_mean", used_mean(view.real, rf), used_mean(sims, sf))
+        if wanted("used_changes_per_min"):
+            def changes(o: Obs, f: np.ndarray) -> np.ndarray:
+                c = np.where(f & np.isfinite(o.sats_used[:, epochs]), o.sats_used[:, epochs], -1)
+                return np.array([changes_per_minute(row, t[epochs]) for row in c])
+            put("used_changes_per_min", changes(view.real, rf), changes(sims, sf))
+        if wanted("hdop_median"):
+            def hdop(o: Obs, f: np.ndarray) -> np.ndarray:
+                return row_quantile(np.where(f, o.hdop[:, epochs], np.nan), 0.5)
+            put("hdop_median", hdop(view.real, rf), hdop(sims, sf))
+        if wanted("fix_fraction"):
+            put("fix_fraction", rf.mean(axis=1), sf.mean(axis=1))
+        if wanted("dgps_fraction"):
+            put("dgps_fraction", (view.real.quality[:, epochs] == 2).mean(axis=1),
+                (sims.quality[:, epochs] == 2).mean(axis=1))
+        starts = view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S
+        if wanted("ttff_s") and starts:
+            def ttff(f: np.ndarray) -> np.ndarray:
+                first = np.argmax(f, axis=1)
+                return np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s, np.nan)
+            put("ttff_s", ttff(rf), ttff(sf))
+        if wanted("error_step_m"):
+            def step(e: np.ndarray, o: Obs) -> np.ndarray:
+                d = np.hypot(np.diff(e[:, :, 0], axis=1), np.diff(e[:, :, 1], axis=1))
+                ok = o.fixed[:, 1:] & o.fixed[:, :-1] & epochs[1:] & (np.diff(t) < 1.5 * _dt(t))
+                return row_quantile(np.where(ok, d, np.nan), 0.5)
+            put("error_step_m", step(err_real, view.real), step(err_sim, sims))
+        if wanted("frozen_fraction"):
+            def frozen(o: Obs) -> np.ndarray:
+                same = (np.diff(o.lat_deg, axis=1) == 0) & (np.diff(o.lon_deg, axis=1) == 0)
+                m = epochs[1:] & o.fixed[:, 1:] & o.fixed[:, :-1]
+                return (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
+            put("frozen_fraction", frozen(view.real), frozen(sims))
+        moving = epochs & (view.speed_mps >= MOVING_MPS)
+        if moving.sum() >= 30 and wanted("lag_s"):
+            put("lag_s", lag_s(err_real, view.vel_enu_mps, moving),
+                lag_s(err_sim, view.vel_enu_mps, moving))
+        if wanted("eq4_deg"):
+            def eq4(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
+                return row_quantile(_eq4_deg(a_lat, a_lon, b_lat, b_lon), 0.5)
+            lat_s, lon_s = sims.lat_deg[:, epochs], sims.lon_deg[:, epochs]
+            rp = eq4(view.real.lat_deg[:, epochs], view.real.lon_deg[:, epochs], lat_s, lon_s)
+            if np.isfinite(rp).any():
+                real["eq4_deg"] = float(np.nanmedian(rp))
+                pair["eq4_deg"] = rp
+                sim["eq4_deg"] = eq4(lat_s, lon_s, np.roll(lat_s, 1, 0), np.roll(lon_s, 1, 0))
+    if view.assess.get("gsv") and sat_mask.any():
+        if wanted("tracked_agreement") and view.assess.get("cn0"):
+            fr, w = tracked_fractions(view, view.real.tracked, sat_mask)
+            fs, _ = tracked_fractions(view, sims.tracked, sat_mask)
+            rp = 1.0 - _disagreement(np.broadcast_to(fr, fs.shape), fs, w)
+            if np.isfinite(rp).any():
+                real["tracked_agreement"] = float(np.nanmedian(rp))
+                pair["tracked_agreement"] = rp
+                sim["tracked_agreement"] = 1.0 - _disagreement(fs, np.roll(fs, 1, 0), w)
+        if wanted("tracked_share") and view.assess.get("cn0"):
+            def share(o: Obs) -> np.ndarray:
+                return (o.tracked & sat_mask[None]).sum(axis=(1, 2)) / sat_mask.sum()
+            put("tracked_share", share(view.real), share(sims))
+        if wanted("cn0_median_dbhz") and view.assess.get("cn0"):
+            def cn0(o: Obs) -> np.ndarray:  # (GSV SNR: whole dB-Hz)
+                return binned_quantile(o.cn0_dbhz, o.tracked & sat_mask[None], 0.5, 1.0, 99.0)
+            put("cn0_median_dbhz", cn0(view.real), cn0(sims))
+        if wanted("used_el_p05_deg") and view.assess.get("gsa") and sats is None:
+            def used_el(o: Obs) -> np.ndarray:
+                el = np.broadcast_to(view.el_deg, o.used.shape)
+                return binned_quantile(el, o.used & sat_mask[None], 0.05, 0.1, 90.0)
+            put("used_el_p05_deg", used_el(view.real), used_el(sims))
+    return SegmentStats(real, sim, pair)
+
+
+def distance(metric: str, stats: SegmentStats) -> float:
+    """Distance of the real statistic from the ensemble's (see the module docstring), capped
+    at :data:`D_CAP`; NaN when the metric is not a score metric or not assessed."""
+    if metric not in SCORE or metric not in stats.real:
+        return float("nan")
+    kind, c = SCORE[metric]
+    sim = stats.sim[metric]
+    if kind == "pair":
+        # disagreement of real with the simulation beyond the seeds' among themselves
+        dr = 1.0 - float(np.nanmedian(stats.pair[metric]))
+        ds = 1.0 - float(np.nanmedian(sim)) if np.isfinite(sim).any() else 0.0
+        d = max(0.0, dr - ds) / c
+    else:
+        if not np.isfinite(sim).any():
+            return D_CAP  # the real receiver shows it, no seed does (e.g. never a fix)
+        r, s = stats.real[metric], float(np.nanmedian(sim))
+        if kind == "log":
+            d = abs(np.log((max(r, 0.0) + c) / (max(s, 0.0) + c)))
+        else:
+            d = abs(r - s) / c
+    return float(min(d, D_CAP))
+
+
+def gap_score(stats: SegmentStats) -> tuple[float, dict[str, float]]:
+    """The scalar gap of a unit of data: mean distance over its score metrics.
+
+    Returns
+    -------
+    gap : float (NaN when no score metric is assessed)
+    parts : {metric: distance}
+    """
+    parts = {m: distance(m, stats) for m in SCORE}
+    parts = {m: d for m, d in parts.items() if np.isfinite(d)}
+    return (float(np.mean(list(parts.values()))) if parts else float("nan")), parts
+
+
+def band(values: np.ndarray) -> tuple[float, float]:
+    """The ensemble's 2.5-97.5 % band of a statistic (NaN seeds left out)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan")
+    lo, hi = np.percentile(v, BAND)
+    return float(lo), float(hi)
+
+
+def where_rows(stats: SegmentStats, segment: str) -> list[dict]:
+    """The contract's ``where`` entries of one segment (DESIGN 7, report.json)."""
+    rows = []
+    for metric, r in stats.real.items():
+        lo, hi = band(stats.sim[metric])
+        if not np.isfinite(lo):
+            outside = True  # shown by the real receiver, by no seed
+        else:
+            outside = bool(r < lo or r > hi)
+        row = {"metric": metric, "segment": segment, "real": r, "sim_lo": lo, "sim_hi": hi,
+               "sim_median": float(np.nanmedian(stats.sim[metric]))
+               if np.isfinite(stats.sim[metric]).any() else float("nan"),
+               "outside": outside}
+        if metric in SCORE:
+            row["distance"] = distance(metric, stats)
+        rows.append(row)
+    return rows
+
+
+def segments(view: RunView) -> dict[str, np.ndarray]:
+    """The epoch segments of a run: name -> (n,) bool (empty ones left out)."""
+    t = view.t_unix_s
+    startup = (t - view.power_on_unix_s < STARTUP_S) & view.started
+    moving = view.speed_mps >= MOVING_MPS
+    seg = {
+        "all": np.ones(t.size, bool),
+        "startup": startup,
+        "steady": ~startup,
+        "stationary": ~moving,
+        "moving": moving,
+        "near_buildings": view.near_building,
+        "open": ~view.near_building,
+    }
+    return {k: v & view.valid for k, v in seg.items() if (v & view.valid).any()}
+
+
+def sky_sectors(view: RunView) -> dict[str, np.ndarray]:
+    """Sky sectors: name -> (n, k) bool over the comparable satellite-epochs."""
+    out = {}
+    az, el = view.az_deg, view.el_deg
+    for a0, a1 in zip(SECTOR_AZ_DEG[:-1], SECTOR_AZ_DEG[1:], strict=True):
+        for e0, e1 in zip(SECTOR_EL_DEG[:-1], SECTOR_EL_DEG[1:], strict=True):
+            m = view.sat_ok & (az >= a0) & (az < a1) & (el >= e0) & (el < e1)
+            if m.any():
+                out[f"sky:az{a0}-{a1}:el{e0}-{e1}"] = m
+    return out
