@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Install everything the tests need, then run them. This is the README's test command and what
 # .ci/run calls. Needs root for apt-get (gpsd for the end-to-end tests; proj-data for the
-# full-resolution EGM96 grid the geoid test compares against).
+# full-resolution EGM96 grid the geoid test compares against; chromium to render the gap
+# tool's HTML report).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null 2>&1; then
   need=()
-  for pkg in gpsd gpsd-clients proj-data; do
+  for pkg in gpsd gpsd-clients proj-data chromium; do
     dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
   done
   if [ ${#need[@]} -gt 0 ]; then

@@ -1,0 +1,132 @@
+"""Ensemble jobs run alike in this process, on local worker processes and on a Dask cluster
+(a real one: scheduler and two workers started here as processes on 127.0.0.1)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from virtualgps.gap import jobs
+from virtualgps.gap.ensemble import EnsembleJob, RunSetup, setup_digest, simulate_job
+from virtualgps.profiles import load_profile
+from virtualgps.receiver import Georef
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def stop_workers():
+    yield
+    jobs.shutdown()
+
+
+def _setup() -> RunSetup:
+    t = 1489257600.0 + np.arange(300.0)
+    ant = np.zeros((t.size, 3))
+    valid = np.ones(t.size, bool)
+    g = Georef(44.98, -93.24, 250.0)
+    tle = str(REPO / "ephemeris" / "gps-ops-2017-03-26.tle")
+    return RunSetup("still", t, ant, ant.copy(), valid, float(t[0]), g, None, tle, 0.0,
+                    setup_digest(t, ant, valid, g, None, tle, 0.0))
+
+
+def _items() -> list[EnsembleJob]:
+    prof = load_profile("holux-m1000")
+    return [EnsembleJob(_setup(), prof, (s, s + 1)) for s in (0, 2, 4)]
+
+
+def _same(a, b) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.lat_deg, y.lat_deg)
+        np.testing.assert_array_equal(x.cn0_dbhz, y.cn0_dbhz)
+        np.testing.assert_array_equal(x.used, y.used)
+
+
+def test_local_workers_equal_this_process():
+    items = _items()
+    _same(jobs.map_jobs(simulate_job, items, jobs=1), jobs.map_jobs(simulate_job, items, jobs=2))
+
+
+def _boom(x: int) -> int:
+    if x == 3:
+        raise ValueError("job 3 failed")
+    return x
+
+
+def test_a_workers_exception_reaches_the_caller():
+    with pytest.raises(ValueError, match="job 3 failed"):
+        jobs.map_jobs(_boom, list(range(6)), jobs=2)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def dask_cluster():
+    """A scheduler and two single-threaded workers, as separate processes on 127.0.0.1."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        if os.environ.get("CI"):
+            pytest.fail("dask.distributed is missing (the test extra installs it)")
+        pytest.skip("dask.distributed not installed")
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), str(REPO / "tests")]))
+    procs = [subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", str(port), "--dashboard-address", ":0"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    for _ in range(2):
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", addr, "--nthreads", "1",
+             "--nworkers", "1", "--dashboard-address", ":0", "--host", "127.0.0.1"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True))
+    try:
+        from distributed import Client
+
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                with Client(addr, timeout=5) as c:
+                    if len(c.scheduler_info()["workers"]) >= 2:
+                        break
+            except OSError:
+                pass
+            if time.monotonic() > deadline:
+                pytest.fail("the local Dask cluster did not come up with 2 workers in 60 s")
+            time.sleep(0.5)
+        yield addr
+    finally:
+        jobs.shutdown()
+        for p in procs:
+            try:
+                os.killpg(p.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def test_dask_cluster_gives_the_same_ensembles(dask_cluster):
+    items = _items()
+    _same(jobs.map_jobs(simulate_job, items, jobs=1),
+          jobs.map_jobs(simulate_job, items, dask_address=dask_cluster))
+
