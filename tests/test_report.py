@@ -39,7 +39,8 @@ def _run(n_t: int, s: int, rng: np.random.Generator, fixes: bool = True) -> rp.R
         sim_err_h_m=err, real_sats_used=np.full(n_t, 8.0) if fixes else np.full(n_t, np.nan),
         sim_sats_used=rng.integers(6, 10, (s, n_t)).astype(float),
         eq4_deg=np.abs(real_lat - sim_lat), final_lat_deg=sim_lat,
-        final_lon_deg=np.tile(lon, (s, 1)), final_err_h_m=err * 1.2, final_sats_used=np.full((s, n_t), 8.0))
+        final_lon_deg=np.tile(lon, (s, 1)), final_err_h_m=err * 1.2,
+        final_sats_used=np.full((s, n_t), 8.0))
 
 
 def _rendered_widths(page: Path, tmp_path: Path) -> list[int]:
