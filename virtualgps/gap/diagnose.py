@@ -61,7 +61,7 @@ MIN_REDUCTION_ABS = 0.02  # an effect is added when it lowers the held-out gap b
 MIN_REDUCTION_REL = 0.05  # this, and by more than this share of the gap before it
 FLAT_OBJECTIVE = 5e-3  # training gaps this close: the data cannot tell the grid points apart
 SCENE_REACH_M = 5000.0
-RETRY_BEST = 6  # candidates carried into the next round of the greedy search
+RETRY_BEST = 4  # candidates carried into the next round of the greedy search
 
 
 @dataclass(frozen=True)

@@ -112,9 +112,9 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     if name == "correlated_error":
         domain = "range" if dop else "position"
         grid = _points(name, {**on, "domain": domain},
-                       tau_s=(30.0, 60.0, 90.0, 120.0, 150.0, 200.0, 300.0, 450.0, 600.0),
+                       tau_s=(30.0, 60.0, 100.0, 150.0, 200.0, 300.0, 600.0),
                        sigma_m=(1.5, 2.5, 3.5, 5.0))
-        return Candidate(name, grid, ("tau_s", "sigma_m", "domain"), default=18)
+        return Candidate(name, grid, ("tau_s", "sigma_m", "domain"), default=14)
     if name == "dop_error":
         # the UERE budget scaled as a whole (its textbook defaults x f)
         base = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m": 0.5,
@@ -150,8 +150,8 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
         return "learned from the data (see diagnose.sky_mask_candidate)"
     if name == "cn0_tracking":
         grid = _points(name, on, cn0_zenith_dbhz=(30.0, 33.0, 36.0, 39.0, 42.0, 45.0),
-                       horizon_loss_db=(10.0, 14.0, 18.0, 22.0, 26.0))
-        return Candidate(name, grid, ("cn0_zenith_dbhz", "horizon_loss_db"), default=21)
+                       horizon_loss_db=(10.0, 16.0, 22.0))
+        return Candidate(name, grid, ("cn0_zenith_dbhz", "horizon_loss_db"), default=13)
     if name == "elevation_mask":
         cur = float(profile.get("sky", {}).get("elevation_mask_deg", 5.0))
         vals = tuple(v for v in (0.0, 5.0, 10.0, 15.0, 20.0) if v != cur)
