@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +29,6 @@ from virtualgps.receiver import (
     initial_state,
     simulate,
 )
-from virtualgps.records import QUALITY_NONE
 
 # A worker keeps at most this many skies (one per run and sky-relevant profile settings).
 SKY_CACHE_SIZE = 48
@@ -260,13 +259,3 @@ def split_seeds(seeds: tuple[int, ...], parts: int) -> list[tuple[int, ...]]:
     """Split seeds into at most ``parts`` contiguous groups (for parallel jobs)."""
     parts = max(1, min(parts, len(seeds)))
     return [tuple(int(s) for s in g) for g in np.array_split(np.asarray(seeds), parts) if len(g)]
-
-
-def no_fix_fraction(ens: Ensemble) -> np.ndarray:
-    """(s,) share of epochs without a fix, per seed."""
-    return (ens.quality == QUALITY_NONE).mean(axis=1)
-
-
-def with_profile(job: EnsembleJob, profile: Profile) -> EnsembleJob:
-    """The same job under another profile."""
-    return replace(job, profile=profile)

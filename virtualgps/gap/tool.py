@@ -108,7 +108,7 @@ def diagnose(
     say = progress or (lambda s: None)
     runs_in, scene, scene_dir, tle, table, source = load_inputs(inp)
     profile = build_profile(table, source)
-    ephem = dg_ephemeris(tle)
+    ephem = _ephemeris(tle)
 
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
@@ -162,7 +162,7 @@ def diagnose(
     return report, figures, final_table
 
 
-def dg_ephemeris(path: str):
+def _ephemeris(path: str):
     """The ephemeris at ``path`` (TLE set or lookup table)."""
     p = Path(path)
     return eph.read_lookup_table(p) if eph.is_lookup_table(p) else eph.load_tle(p)

@@ -63,7 +63,6 @@ SCORE: dict[str, tuple[str, float]] = {
 # paper's view, not a statistic of the receiver); bias_m is one sample per run of the slowest
 # error and of the truth's own offset (a map-picked point, a lever arm), while CEP50 and R95
 # already measure the error against the truth.
-WHERE_ONLY = ("eq4_deg", "bias_m")
 
 
 @dataclass(frozen=True)
