@@ -41,8 +41,11 @@ from virtualgps.gap.ensemble import (
 from virtualgps.gap.jobs import map_jobs
 from virtualgps.gap.where import (
     SCORE,
+    SKY_BIN_AZ_DEG,
+    SKY_BIN_EL_DEG,
     Obs,
     RunView,
+    bin_tracking,
     errors_enu,
     gap_score,
     pooled_tracking_disagreement,
@@ -270,13 +273,13 @@ class GapJob:
     units: tuple[np.ndarray, ...]
 
 
-def gap_job(j: GapJob) -> list[tuple[float, dict[str, float], np.ndarray]]:
-    """The gap of each unit, its distances per metric and its per-PRN tracking counts (see
-    :class:`GapJob`)."""
+def gap_job(j: GapJob) -> list[tuple[float, dict[str, float], np.ndarray, np.ndarray]]:
+    """The gap of each unit, its distances per metric, and its tracking counts per PRN and per
+    sky bin (see :class:`GapJob`)."""
     sims = sim_obs(simulate_job(j.job), j.view)
     err = errors_enu(j.view, sims)
     return [gap_score(segment_stats(j.view, sims, j.err_real, err, m, metrics=SCORE))
-            + (prn_tracking(j.view, sims, m),) for m in j.units]
+            + (prn_tracking(j.view, sims, m), bin_tracking(j.view, sims, m)) for m in j.units]
 
 
 class Simulator:
@@ -288,6 +291,7 @@ class Simulator:
         self._gaps: dict[tuple[str, int], float] = {}
         self._parts: dict[tuple[str, int], dict[str, float]] = {}
         self._prn: dict[tuple[str, int], np.ndarray] = {}
+        self._bins: dict[tuple[str, int], np.ndarray] = {}
         self.units = self._units()
         self.n_folds = len(self.runs) if len(self.runs) > 1 else self.opts.blocks
         # The units the calibrated profile is fitted on: whole runs (a single run's blocks
@@ -351,16 +355,23 @@ class Simulator:
             res = map_jobs(gap_job, jobs, jobs=self.opts.jobs, dask_address=self.opts.dask)
             for (key, us), gaps, j in zip(todo, res, jobs, strict=True):
                 self.n_sims += len(seeds) * j.job.setup.t_unix_s.size
-                for u, (g, parts, prn) in zip(us, gaps, strict=True):
+                for u, (g, parts, prn, bins) in zip(us, gaps, strict=True):
                     self._gaps[(key, u)] = float(g)
                     self._parts[(key, u)] = parts
                     self._prn[(key, u)] = prn
+                    self._bins[(key, u)] = bins
         return [np.array([self._gaps.get((k, u), np.nan) for u in range(len(self.units))])
                 for k in keys]
 
     def parts(self, table: dict[str, Any], unit: int) -> dict[str, float]:
         """Distances per metric of a unit under a table (after :meth:`unit_gaps_many`)."""
         return self._parts.get((fx.to_toml(table), unit), {})
+
+    def sky_bins(self, table: dict[str, Any], units: Sequence[int]) -> np.ndarray:
+        """(3, n_bins) tracking counts per sky bin summed over units under a table."""
+        self.unit_gaps(table, list(units))
+        key = fx.to_toml(table)
+        return np.sum([self._bins[(key, u)] for u in units], axis=0)
 
     def heldout_tracking(self, fold_tables: Sequence[dict[str, Any]]) -> float:
         """Per-PRN tracking disagreement over the held-out units, each under its fold's
@@ -390,7 +401,7 @@ class Tried:
     """One candidate tried on top of the current per-fold profiles."""
 
     cand: fx.Candidate
-    fold_points: list[int]  # the grid point fitted for each fold
+    fold_overrides: list[dict]  # the tables fitted for each fold
     heldout_before: np.ndarray  # (U,) held-out gaps without it
     heldout_after: np.ndarray  # (U,) with it
     metrics_before: dict[str, float]  # held-out distance per metric without it (mean of folds)
@@ -421,27 +432,41 @@ def _fit_point(gaps: np.ndarray, train: np.ndarray, default: int) -> int:
     return default
 
 
+def _options(sim: Simulator, table: dict, cand: fx.Candidate, train: Sequence[int]
+             ) -> tuple[list[dict], int]:
+    """A candidate's override tables on top of ``table``, and the default's index: its grid,
+    or for a learned sky mask the masks learned from the training units at each level."""
+    if not cand.learned:
+        return list(cand.grid), cand.default
+    counts = sim.sky_bins(table, train)
+    masks = [fx.learned_sky_mask(counts, lv, SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG)
+             for lv in cand.learned]
+    masks = [m for m in masks if m is not None]
+    return (masks, len(masks) // 2) if masks else ([{}], 0)
+
+
 def try_candidate(sim: Simulator, fold_tables: list[dict], cand: fx.Candidate) -> Tried:
     """Held-out gap of adding ``cand`` to each fold's profile (see the module docstring)."""
     n_u = sim.n_folds
-    distinct: dict[str, dict] = {fx.to_toml(t): t for t in fold_tables}
-    tables = [fx.apply(t, pt) for t in distinct.values() for pt in cand.grid]
-    flat = sim.unit_gaps_many(tables + list(distinct.values()))
-    n_p = len(cand.grid)
-    grids = {key: np.stack(flat[i * n_p:(i + 1) * n_p]) for i, key in enumerate(distinct)}
-    points, after, before = [], np.full(n_u, np.nan), np.full(n_u, np.nan)
+    all_units = np.arange(len(sim.units))
+    options = []
+    for f in range(n_u):
+        train = all_units[(all_units < n_u) & (all_units != f)]
+        options.append(_options(sim, fold_tables[f], cand, train))
+    tables = [fx.apply(fold_tables[f], o) for f in range(n_u) for o in options[f][0]]
+    flat = iter(sim.unit_gaps_many(tables + fold_tables))
+    chosen, after, before = [], np.full(n_u, np.nan), np.full(n_u, np.nan)
     parts_before, parts_after = [], []
     for f in range(n_u):
-        key = fx.to_toml(fold_tables[f])
-        train = np.arange(len(sim.units)) < n_u
-        train[f] = False
-        p = _fit_point(grids[key], train, cand.default)
-        points.append(p)
-        after[f] = grids[key][p, f]
+        gaps = np.stack([next(flat) for _ in options[f][0]])
+        train = (all_units < n_u) & (all_units != f)
+        p = _fit_point(gaps, train, options[f][1])
+        chosen.append(options[f][0][p])
+        after[f] = gaps[p, f]
         before[f] = sim.unit_gaps(fold_tables[f])[f]
         parts_before.append(sim.parts(fold_tables[f], f))
-        parts_after.append(sim.parts(fx.apply(fold_tables[f], cand.grid[p]), f))
-    return Tried(cand, points, before, after, _mean_parts(parts_before), _mean_parts(parts_after))
+        parts_after.append(sim.parts(fx.apply(fold_tables[f], chosen[-1]), f))
+    return Tried(cand, chosen, before, after, _mean_parts(parts_before), _mean_parts(parts_after))
 
 
 def _mean_parts(parts: list[dict[str, float]]) -> dict[str, float]:
@@ -450,10 +475,11 @@ def _mean_parts(parts: list[dict[str, float]]) -> dict[str, float]:
     return {m: float(np.mean([p[m] for p in parts if m in p])) for m in names}
 
 
-def fit_all(sim: Simulator, table: dict, cand: fx.Candidate) -> int:
-    """The grid point fitted on every unit (for the calibrated profile)."""
-    gaps = np.stack(sim.unit_gaps_many([fx.apply(table, pt) for pt in cand.grid]))
-    return _fit_point(gaps, sim.whole, cand.default)
+def fit_all(sim: Simulator, table: dict, cand: fx.Candidate) -> dict:
+    """The override table fitted on every run (for the calibrated profile)."""
+    opts, default = _options(sim, table, cand, list(np.flatnonzero(sim.whole)))
+    gaps = np.stack(sim.unit_gaps_many([fx.apply(table, o) for o in opts]))
+    return opts[_fit_point(gaps, sim.whole, default)]
 
 
 @dataclass
@@ -476,7 +502,8 @@ def greedy(sim: Simulator, base: dict, opts: Options, has_mesh: bool,
     n_u = sim.n_folds
     fold_tables = [base] * n_u
     all_table = base
-    cands, skipped = fx.candidates(base, has_mesh, opts.effects)
+    has_gsv = any(r.view.assess["gsv"] and r.view.assess["cn0"] for r in sim.runs)
+    cands, skipped = fx.candidates(base, has_mesh, opts.effects, has_gsv)
     baseline = float(np.nanmean([sim.unit_gaps(base)[f] for f in range(n_u)]))
     steps: list[dict] = []
     ranking: list[dict] = []
@@ -495,17 +522,17 @@ def greedy(sim: Simulator, base: dict, opts: Options, has_mesh: bool,
         best = tried[0]
         if not accept(best, current):
             break
-        p_all = fit_all(sim, all_table, best.cand)
-        all_table = fx.apply(all_table, best.cand.grid[p_all])
-        fold_tables = [fx.apply(t, best.cand.grid[p])
-                       for t, p in zip(fold_tables, best.fold_points, strict=True)]
-        steps.append(_entry(best, sim, p_all) | {"gap_before": current})
+        fitted = fit_all(sim, all_table, best.cand)
+        all_table = fx.apply(all_table, fitted)
+        fold_tables = [fx.apply(t, o)
+                       for t, o in zip(fold_tables, best.fold_overrides, strict=True)]
+        steps.append(_entry(best, sim, fitted) | {"gap_before": current})
         current = best.after
         # Later rounds try the most promising candidates of this one (each round re-fits
         # them on top of the effects added so far; an effect far behind stays behind).
         cands = [tr.cand for tr in tried[1:RETRY_BEST + 1]]
         # a newly applicable effect (e.g. multipath once dop_error is in)
-        more, _ = fx.candidates(all_table, has_mesh, opts.effects)
+        more, _ = fx.candidates(all_table, has_mesh, opts.effects, has_gsv)
         known = {c.name for c in cands} | {s["name"] for s in steps}
         cands += [c for c in more if c.name not in known]
     _contributions(sim, base, steps, fold_tables)
@@ -529,13 +556,13 @@ def accept(tr: Tried, current: float) -> bool:
     return bool(gain > MIN_REDUCTION_ABS and gain > MIN_REDUCTION_REL * current and most)
 
 
-def _entry(tr: Tried, sim: Simulator, p_all: int | None) -> dict:
+def _entry(tr: Tried, sim: Simulator, fitted: dict | None) -> dict:
     """A report entry for a tried candidate."""
     c = tr.cand
-    folds = [c.params_of(p) for p in tr.fold_points]
+    folds = [c.params_of(o) for o in tr.fold_overrides]
     return {
         "name": c.name,
-        "params": c.params_of(p_all if p_all is not None else tr.fold_points[0]),
+        "params": c.params_of(fitted if fitted is not None else tr.fold_overrides[0]),
         "gap_before": tr.before,
         "gap_after": tr.after,
         "gap_after_spread": _spread(tr.heldout_after),
@@ -545,8 +572,7 @@ def _entry(tr: Tried, sim: Simulator, p_all: int | None) -> dict:
         "fold_params": folds,
         "metrics_before": tr.metrics_before,
         "metrics_after": tr.metrics_after,
-        "_cand": c,
-        "_points": list(tr.fold_points),
+        "_overrides": list(tr.fold_overrides),
     }
 
 
@@ -572,7 +598,7 @@ def _contributions(sim: Simulator, base: dict, steps: list[dict], fold_tables: l
             t = base
             for other in steps:
                 if other is not s:
-                    t = fx.apply(t, other["_cand"].grid[other["_points"][f]])
+                    t = fx.apply(t, other["_overrides"][f])
             tables.append(t)
         gaps = sim.unit_gaps_many(tables + [fold_tables[f]], [f])
         held[:, f] = [g[f] for g in gaps[:-1]]

@@ -40,11 +40,12 @@ class Candidate:
     grid: tuple[dict[str, dict[str, Any]], ...]
     params: tuple[str, ...]
     default: int = 0
+    learned: tuple[float, ...] = ()  # sky_mask: its grid is learned per fold, at these levels
 
-    def params_of(self, i: int) -> dict[str, Any]:
-        """The fitted parameters of grid point ``i`` as profile keys (flat, for the report)."""
+    def params_of(self, overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:
+        """The fitted parameters of an override table as profile keys (flat, for the report)."""
         out: dict[str, Any] = {}
-        for table in self.grid[i].values():
+        for table in overrides.values():
             out.update({k: v for k, v in table.items() if k in self.params})
         return out
 
@@ -62,7 +63,8 @@ def _enabled(profile: dict[str, Any], table: str) -> bool:
 
 
 def candidates(
-    profile: dict[str, Any], has_mesh: bool, names: tuple[str, ...] | None = None
+    profile: dict[str, Any], has_mesh: bool, names: tuple[str, ...] | None = None,
+    has_gsv: bool = False,
 ) -> tuple[list[Candidate], dict[str, str]]:
     """The effects a profile lacks (or has switched off) that can be tried on it.
 
@@ -72,6 +74,7 @@ def candidates(
         effects merged in)
     has_mesh : some run is simulated in a scene with a mesh (``nlos``, ``multipath`` need
         walls)
+    has_gsv : the real logs list satellites with SNR (``sky_mask`` is learned from them)
     names : restrict to these effects (``--effects``); None: every one
 
     Returns
@@ -91,7 +94,7 @@ def candidates(
         table = "sky" if name == "elevation_mask" else name
         if name != "noise_level" and name != "elevation_mask" and _enabled(profile, table):
             continue  # already in the profile
-        c = _candidate(name, profile, baseline, dop, has_mesh)
+        c = _candidate(name, profile, baseline, dop, has_mesh, has_gsv)
         if isinstance(c, str):
             skipped[name] = c
         else:
@@ -99,7 +102,8 @@ def candidates(
     return out, skipped
 
 
-def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool):  # noqa: C901
+def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool,  # noqa: C901
+               has_gsv: bool):
     on = {"enabled": True}
     if name == "noise_level":
         if not baseline:
@@ -147,7 +151,10 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
         grid = _points(name, on, db_per_m=(0.5, 1.0, 2.0, 4.0))
         return Candidate(name, grid, ("db_per_m",), default=1)
     if name == "sky_mask":
-        return "learned from the data (see diagnose.sky_mask_candidate)"
+        if not has_gsv:
+            return "needs GSV with SNR in the real logs (it is learned from what they track)"
+        return Candidate(name, (), ("az_bin_deg", "el_bin_deg", "atten_db"),
+                         learned=SKY_MASK_LEVELS)
     if name == "cn0_tracking":
         grid = _points(name, on, cn0_zenith_dbhz=(30.0, 33.0, 36.0, 39.0, 42.0, 45.0),
                        horizon_loss_db=(10.0, 16.0, 22.0))
@@ -169,6 +176,44 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     if name == "sbas":
         return Candidate(name, ({name: dict(on)},), ())
     raise AssertionError(name)
+
+
+# A sky bin is masked when the real receiver tracks at most this share of the satellite-epochs
+# there that the simulation tracks at least SKY_MASK_SIM_SHARE of (each level a grid point).
+SKY_MASK_LEVELS = (0.1, 0.25, 0.4)
+SKY_MASK_SIM_SHARE = 0.5
+SKY_MASK_MIN_EPOCHS = 30  # satellite-epochs a bin needs before it can be judged
+
+
+def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: float
+                     ) -> dict[str, dict[str, Any]] | None:
+    """A ``sky_mask`` table blocking the sky bins where the real receiver loses what the
+    simulation tracks (obstacles the scene lacks: a vehicle roof, a wall, a tree).
+
+    Parameters
+    ----------
+    counts : (3, n_el * n_az) compared, real tracked, simulated tracked satellite-epochs per bin
+        (rows from the horizon up; :func:`virtualgps.gap.where.bin_tracking` summed over units)
+    level : real tracked share at or below which a bin is masked
+    az_bin_deg, el_bin_deg : the bins' size
+
+    Returns
+    -------
+    overrides : {"sky_mask": {...}} with ``inf`` in the masked bins, or None if none is masked
+    """
+    import numpy as np
+
+    c = np.asarray(counts, dtype=float)
+    n_az = int(round(360.0 / az_bin_deg))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        real, simu = c[1] / c[0], c[2] / c[0]
+    masked = (c[0] >= SKY_MASK_MIN_EPOCHS) & (real <= level) & (simu >= SKY_MASK_SIM_SHARE)
+    if not masked.any():
+        return None
+    rows = np.where(masked, np.inf, 0.0).reshape(-1, n_az)
+    last = int(np.flatnonzero(masked.reshape(-1, n_az).any(axis=1)).max()) + 1
+    return {"sky_mask": {"enabled": True, "az_bin_deg": az_bin_deg, "el_bin_deg": el_bin_deg,
+                         "atten_db": [list(map(float, r)) for r in rows[:last]]}}
 
 
 def apply(profile: dict[str, Any], overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:

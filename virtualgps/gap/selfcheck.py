@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -53,6 +54,15 @@ class Injection:
 
 def _u(rng: np.random.Generator, lo: float, hi: float, nd: int = 1) -> float:
     return round(float(rng.uniform(lo, hi)), nd)
+
+
+def _sector(rng: np.random.Generator) -> list[list[float]]:
+    """A blocked sky sector (a wall or a vehicle the scene lacks): 60-120 deg of azimuth from
+    the horizon to 30-45 deg of elevation, in 30 x 15 deg bins."""
+    start, width = int(rng.integers(0, 12)), int(rng.integers(2, 5))
+    rows = int(rng.integers(2, 4))
+    row = [math.inf if (c - start) % 12 < width else 0.0 for c in range(12)]
+    return [list(row) for _ in range(rows)]
 
 
 INJECTIONS: dict[str, Injection] = {
@@ -100,6 +110,11 @@ INJECTIONS: dict[str, Injection] = {
         "holux-m1000", {},
         lambda r: {"sky": {"elevation_mask_deg": _u(r, 12, 20, 0)}},
         ("static_open", "moving_open")),
+    "sky_mask": Injection(
+        "holux-m1000", {},
+        lambda r: {"sky_mask": {"enabled": True, "az_bin_deg": 30.0, "el_bin_deg": 15.0,
+                                "atten_db": _sector(r)}},
+        ("static_open", "moving_open", "static_built")),
     "noise_level": Injection(
         "usarsim", {},
         lambda r: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
