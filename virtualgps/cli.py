@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--seeds", type=int, default=50, help="ensemble size (default 50)")
     gap.add_argument("--fit-seeds", type=int,
                      help="seeds per candidate parameter set while fitting (default min(seeds, "
-                     "10))")
+                     "8))")
     gap.add_argument("--effects", help="candidate effects, comma-separated (default: every "
                      "effect the profile lacks or has switched off)")
     gap.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")

@@ -73,7 +73,7 @@ class Options:
 
     seeds : ensemble size for locating the gap and the final band
     fit_seeds : seeds per grid point while fitting (common random numbers); default
-        min(seeds, 10)
+        min(seeds, 8)
     effects : candidate effect names (None: every one the profile lacks)
     jobs : local worker processes (None: all cores); dask : a Dask scheduler address
     blocks : held-out time blocks for a single run
@@ -88,7 +88,7 @@ class Options:
 
     @property
     def n_fit(self) -> int:
-        return self.fit_seeds if self.fit_seeds is not None else min(self.seeds, 10)
+        return self.fit_seeds if self.fit_seeds is not None else min(self.seeds, 8)
 
 
 @dataclass
@@ -335,10 +335,10 @@ class Simulator:
 
     def unit_gaps_many(self, tables: Sequence[dict[str, Any]],
                        only_units: Sequence[int] | None = None) -> list[np.ndarray]:
-        """(U,) gap of each held-out unit under each profile table (fit seeds; cached; the
-        missing (table, run) pairs simulated in one batch of jobs). Units not asked for and
-        not cached are NaN."""
-        want = list(range(len(self.units))) if only_units is None else list(only_units)
+        """(U,) gap of each unit under each profile table (fit seeds; cached; the missing
+        (table, run) pairs simulated in one batch of jobs). ``only_units`` defaults to the
+        held-out units; units not asked for and not cached are NaN."""
+        want = list(range(self.n_folds)) if only_units is None else list(only_units)
         keys = [fx.to_toml(t) for t in tables]
         jobs, todo = [], []
         seeds = tuple(range(self.opts.n_fit))
@@ -477,8 +477,9 @@ def _mean_parts(parts: list[dict[str, float]]) -> dict[str, float]:
 
 def fit_all(sim: Simulator, table: dict, cand: fx.Candidate) -> dict:
     """The override table fitted on every run (for the calibrated profile)."""
-    opts, default = _options(sim, table, cand, list(np.flatnonzero(sim.whole)))
-    gaps = np.stack(sim.unit_gaps_many([fx.apply(table, o) for o in opts]))
+    whole = list(np.flatnonzero(sim.whole))
+    opts, default = _options(sim, table, cand, whole)
+    gaps = np.stack(sim.unit_gaps_many([fx.apply(table, o) for o in opts], whole))
     return opts[_fit_point(gaps, sim.whole, default)]
 
 
