@@ -32,13 +32,14 @@ from __future__ import annotations
 import io
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from virtualgps import geodesy, nmea, pose
 from virtualgps.ephemeris import Constellation, load_tle
+from virtualgps.gap.ingest import take_epochs
 from virtualgps.gap.metrics import median_position, summary
 from virtualgps.gap.reallogs import (
     M241_MOVING_MIN_SPEED_MPS,
@@ -218,24 +219,12 @@ def sim_calibration_stats(
         # The real statistic is over the records logged while moving: the same epochs here.
         moving_t = t[speed >= M241_MOVING_MIN_SPEED_MPS] + shift
         keep = np.isin(np.round(ep.t_unix_s), np.round(moving_t))
-        s = summary(_take(ep, keep), reference=None)
+        s = summary(take_epochs(ep, keep), reference=None)
         for k, v in s.items():
             out["m241_moving"].setdefault(k, []).append(v)
         if progress is not None:
             progress(f"M-241 track, seed {seed}")
     return out
-
-
-def _take(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
-    """The epochs where ``keep`` holds (every per-epoch array cut alike)."""
-    n = len(epochs)
-    cut = {
-        f.name: getattr(epochs, f.name)[keep]
-        for f in fields(epochs)
-        if isinstance(getattr(epochs, f.name), np.ndarray)
-        and getattr(epochs, f.name).shape[:1] == (n,)
-    }
-    return replace(epochs, **cut)
 
 
 @dataclass(frozen=True)

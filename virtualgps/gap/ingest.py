@@ -131,7 +131,7 @@ def _line_census(lines: list[str]) -> tuple[Counter, Counter]:
     return sentences, skipped
 
 
-def _take(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
+def take_epochs(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
     """The epochs at the indices (or mask) ``keep``, every per-epoch array cut alike."""
     n = len(epochs)
     cut = {f.name: getattr(epochs, f.name)[keep] for f in fields(epochs)
@@ -172,7 +172,7 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
     first = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)
     if (~first).any():
         skipped["duplicate_epoch"] = int((~first).sum())
-    ep = _take(ep, order[first])
+    ep = take_epochs(ep, order[first])
     if not ((ep.quality > 0) & np.isfinite(ep.lat_deg)).any():
         raise InputFileError(path, "no epoch of the log has a fix (GGA quality > 0 with a "
                              "position)")
