@@ -11,7 +11,11 @@ recovered parameters and the held-out shrinkage are reported.
 
 The profile under test is ``holux-m1000`` with the effect switched off (for its own effects) or
 as it is (for the effects it lacks); ``noise_level`` and ``dop_error``, which change the
-baseline error, are checked on ``usarsim``.
+baseline error, are checked on ``usarsim``. Each effect is checked where its signature can show
+at the drawn parameters: ``nlos`` and ``multipath`` near the campus's walls; ``latency`` and
+``nav_filter`` on vehicle paths (at walking speed their lag, 1-4 m, is below a receiver's
+error between buildings); a blocked sky sector in open sky (between buildings the mesh blocks
+much of it already).
 """
 
 from __future__ import annotations
@@ -93,11 +97,11 @@ INJECTIONS: dict[str, Injection] = {
     "latency": Injection(
         "holux-m1000", {},
         lambda r: {"latency": {"enabled": True, "latency_s": _u(r, 0.5, 2.0, 2)}},
-        ("moving_open", "moving_built")),
+        ("moving_open",)),
     "nav_filter": Injection(
         "holux-m1000", {},
         lambda r: {"nav_filter": {"enabled": True, "tau_s": _u(r, 1.5, 4.0)}},
-        ("moving_open", "moving_built")),
+        ("moving_open",)),
     "static_hold": Injection(
         "holux-m1000", {},
         lambda r: {"static_hold": {"enabled": True, "threshold_mps": _u(r, 0.6, 1.5)}},
@@ -108,13 +112,13 @@ INJECTIONS: dict[str, Injection] = {
         ("static_open", "moving_open", "static_built")),
     "elevation_mask": Injection(
         "holux-m1000", {},
-        lambda r: {"sky": {"elevation_mask_deg": _u(r, 12, 20, 0)}},
+        lambda r: {"sky": {"elevation_mask_deg": _u(r, 15, 25, 0)}},
         ("static_open", "moving_open")),
     "sky_mask": Injection(
         "holux-m1000", {},
         lambda r: {"sky_mask": {"enabled": True, "az_bin_deg": 30.0, "el_bin_deg": 15.0,
                                 "atten_db": _sector(r)}},
-        ("static_open", "moving_open", "static_built")),
+        ("static_open", "moving_open")),
     "noise_level": Injection(
         "usarsim", {},
         lambda r: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
