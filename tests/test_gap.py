@@ -120,6 +120,30 @@ def test_fit_keeps_the_default_without_evidence():
     assert dg._fit_point(gaps, np.array([True, False]), default=1) == 0
 
 
+def test_learned_sky_mask_blocks_bins_the_real_receiver_loses():
+    n_bins = 6 * 12  # 15 x 30 deg bins
+    counts = np.zeros((3, n_bins))
+    counts[0, [8, 9, 30, 40]] = [600, 600, 600, 10]  # compared satellite-epochs
+    counts[2, [8, 9, 30, 40]] = [290, 580, 600, 10]  # simulated tracked (low bins: part time)
+    counts[1, [8, 9, 30, 40]] = [0, 520, 590, 0]  # real: loses bin 8 (and 40, too few epochs)
+    table = fx.learned_sky_mask(counts, 0.25, 30.0, 15.0)["sky_mask"]
+    atten = np.array(table["atten_db"])
+    assert atten.shape == (1, 12) and np.isinf(atten[0, 8]) and np.isfinite(atten).sum() == 11
+    counts[1, 8] = 200  # tracked 2/3 as often as simulated: an attenuation, not a mask
+    assert fx.learned_sky_mask(counts, 0.25, 30.0, 15.0) is None
+
+
+def test_selfcheck_sector_lies_where_satellites_pass_low_inside_and_outside():
+    from virtualgps.gap import selfcheck
+
+    low = np.zeros(12)
+    low[[2, 7]] = 2.0  # two satellites low in the sky at 60-90 deg, two at 210-240 deg
+    for seed in range(20):
+        rows = np.array(selfcheck._sector(np.random.default_rng(seed), low))
+        blocked = np.isinf(rows[0])
+        assert 2 <= blocked.sum() <= 4 and blocked[2] != blocked[7]
+
+
 # --- ingest --------------------------------------------------------------------------------------
 
 

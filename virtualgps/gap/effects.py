@@ -178,10 +178,12 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     raise AssertionError(name)
 
 
-# A sky bin is masked when the real receiver tracks at most this share of the satellite-epochs
-# there that the simulation tracks at least SKY_MASK_SIM_SHARE of (each level a grid point).
+# A sky bin is masked when the real receiver tracks at most this fraction of what the simulation
+# tracks there (shares of the bin's satellite-epochs; each level a grid point), where the
+# simulation tracks at least SKY_MASK_SIM_SHARE of them (low bins, where a receiver tracks
+# satellites part of the time, count as well as high ones).
 SKY_MASK_LEVELS = (0.1, 0.25, 0.4)
-SKY_MASK_SIM_SHARE = 0.5
+SKY_MASK_SIM_SHARE = 0.2
 SKY_MASK_MIN_EPOCHS = 30  # satellite-epochs a bin needs before it can be judged
 
 
@@ -194,7 +196,8 @@ def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: f
     ----------
     counts : (3, n_el * n_az) compared, real tracked, simulated tracked satellite-epochs per bin
         (rows from the horizon up; :func:`virtualgps.gap.where.bin_tracking` summed over units)
-    level : real tracked share at or below which a bin is masked
+    level : real tracked share, as a fraction of the simulated one, at or below which a bin is
+        masked
     az_bin_deg, el_bin_deg : the bins' size
 
     Returns
@@ -207,7 +210,8 @@ def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: f
     n_az = int(round(360.0 / az_bin_deg))
     with np.errstate(invalid="ignore", divide="ignore"):
         real, simu = c[1] / c[0], c[2] / c[0]
-    masked = (c[0] >= SKY_MASK_MIN_EPOCHS) & (real <= level) & (simu >= SKY_MASK_SIM_SHARE)
+    masked = ((c[0] >= SKY_MASK_MIN_EPOCHS) & (simu >= SKY_MASK_SIM_SHARE)
+              & (real <= level * simu))
     if not masked.any():
         return None
     rows = np.where(masked, np.inf, 0.0).reshape(-1, n_az)

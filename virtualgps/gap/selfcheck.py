@@ -34,7 +34,7 @@ from virtualgps import geodesy, nmea, pose
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
 from virtualgps.profiles import load_profile_dict
-from virtualgps.receiver import Georef, Receiver
+from virtualgps.receiver import Georef, Receiver, compute_sky
 from virtualgps.replay import epoch_grid, run_replay
 
 DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
@@ -46,13 +46,14 @@ class Injection:
     """How one effect is injected.
 
     base : the profile under test; withhold : tables that switch the effect off in it
-    draw : rng -> the injected tables (known parameters)
+    draw : (rng, low_sats) -> the injected tables (known parameters); low_sats: (12,) the
+        run's mean number of satellites below 30 deg elevation per 30 deg of azimuth
     scenarios : the trajectories it is checked on (cycled over trials)
     """
 
     base: str
     withhold: dict
-    draw: Callable[[np.random.Generator], dict]
+    draw: Callable[[np.random.Generator, np.ndarray], dict]
     scenarios: tuple[str, ...]
 
 
@@ -60,72 +61,86 @@ def _u(rng: np.random.Generator, lo: float, hi: float, nd: int = 1) -> float:
     return round(float(rng.uniform(lo, hi)), nd)
 
 
-def _sector(rng: np.random.Generator) -> list[list[float]]:
+def _sector(rng: np.random.Generator, low_sats: np.ndarray) -> list[list[float]]:
     """A blocked sky sector (a wall or a vehicle the scene lacks): 60-120 deg of azimuth from
-    the horizon to 30-45 deg of elevation, in 30 x 15 deg bins."""
-    start, width = int(rng.integers(0, 12)), int(rng.integers(2, 5))
-    rows = int(rng.integers(2, 4))
-    row = [math.inf if (c - start) % 12 < width else 0.0 for c in range(12)]
+    the horizon to 30-45 deg of elevation, in 30 x 15 deg bins.
+
+    It is placed where the run's satellites pass below 30 deg both inside it and outside it
+    (``low_sats``: (12,) mean number of satellites below 30 deg per 30 deg of azimuth): a
+    sector that one satellite crosses for a few minutes leaves next to no trace in a log, and
+    one that holds every low satellite is the same, in the log, as a higher elevation mask.
+    Without such a place, anywhere.
+    """
+    width, rows = int(rng.integers(2, 5)), int(rng.integers(2, 4))
+    inside = np.array([[(c - s) % 12 < width for c in range(12)] for s in range(12)])
+    low = np.asarray(low_sats, dtype=float)
+    fits = np.flatnonzero(((inside * low).sum(1) >= MIN_SECTOR_SATS)
+                          & ((~inside * low).sum(1) >= MIN_SECTOR_SATS))
+    start = int(rng.choice(fits)) if fits.size else int(rng.integers(0, 12))
+    row = [math.inf if inside[start, c] else 0.0 for c in range(12)]
     return [list(row) for _ in range(rows)]
+
+
+MIN_SECTOR_SATS = 1.5  # mean satellites below 30 deg inside (and outside) a blocked sector
 
 
 INJECTIONS: dict[str, Injection] = {
     "correlated_error": Injection(
         "holux-m1000", {"correlated_error": {"enabled": False}},
-        lambda r: {"correlated_error": {"enabled": True, "domain": "range",
+        lambda r, _: {"correlated_error": {"enabled": True, "domain": "range",
                                         "tau_s": _u(r, 80, 400, 0), "sigma_m": _u(r, 2.5, 5)}},
         ("static_open", "moving_open", "static_built")),
     "cold_start": Injection(
         "holux-m1000", {"cold_start": {"enabled": False}},
-        lambda r: {"cold_start": {"enabled": True, "power_on": "cold",
+        lambda r, _: {"cold_start": {"enabled": True, "power_on": "cold",
                                   "ttff_cold_s": _u(r, 25, 60, 0)}},
         ("static_open", "moving_open", "static_built")),
     "cn0_tracking": Injection(
         "holux-m1000", {"cn0_tracking": {"enabled": False}},
-        lambda r: {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": _u(r, 35, 41, 0),
+        lambda r, _: {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": _u(r, 35, 41, 0),
                                     "horizon_loss_db": _u(r, 16, 24, 0)}},
         ("static_open", "moving_open", "static_built")),
     "nlos": Injection(
         "holux-m1000", {"nlos": {"enabled": False}},
-        lambda r: {"nlos": {"enabled": True, "scattering": True, "max_dist_m": 50.0,
+        lambda r, _: {"nlos": {"enabled": True, "scattering": True, "max_dist_m": 50.0,
                             "reflection_loss_db": _u(r, 4, 8, 0)}},
         ("moving_built",)),
     "multipath": Injection(
         "holux-m1000", {},
-        lambda r: {"multipath": {"enabled": True, "sigma_m": _u(r, 10, 20), "tau_s": 30.0}},
+        lambda r, _: {"multipath": {"enabled": True, "sigma_m": _u(r, 10, 20), "tau_s": 30.0}},
         ("moving_built",)),
     "latency": Injection(
         "holux-m1000", {},
-        lambda r: {"latency": {"enabled": True, "latency_s": _u(r, 0.5, 2.0, 2)}},
+        lambda r, _: {"latency": {"enabled": True, "latency_s": _u(r, 0.5, 2.0, 2)}},
         ("moving_open",)),
     "nav_filter": Injection(
         "holux-m1000", {},
-        lambda r: {"nav_filter": {"enabled": True, "tau_s": _u(r, 1.5, 4.0)}},
+        lambda r, _: {"nav_filter": {"enabled": True, "tau_s": _u(r, 1.5, 4.0)}},
         ("moving_open",)),
     "static_hold": Injection(
         "holux-m1000", {},
-        lambda r: {"static_hold": {"enabled": True, "threshold_mps": _u(r, 0.6, 1.5)}},
+        lambda r, _: {"static_hold": {"enabled": True, "threshold_mps": _u(r, 0.6, 1.5)}},
         ("moving_open", "moving_built")),
     "sbas": Injection(
         "holux-m1000", {},
-        lambda r: {"sbas": {"enabled": True}},
+        lambda r, _: {"sbas": {"enabled": True}},
         ("static_open", "moving_open", "static_built")),
     "elevation_mask": Injection(
         "holux-m1000", {},
-        lambda r: {"sky": {"elevation_mask_deg": _u(r, 15, 25, 0)}},
+        lambda r, _: {"sky": {"elevation_mask_deg": _u(r, 15, 25, 0)}},
         ("static_open", "moving_open")),
     "sky_mask": Injection(
         "holux-m1000", {},
-        lambda r: {"sky_mask": {"enabled": True, "az_bin_deg": 30.0, "el_bin_deg": 15.0,
-                                "atten_db": _sector(r)}},
+        lambda r, low: {"sky_mask": {"enabled": True, "az_bin_deg": 30.0, "el_bin_deg": 15.0,
+                                  "atten_db": _sector(r, low)}},
         ("static_open", "moving_open")),
     "noise_level": Injection(
         "usarsim", {},
-        lambda r: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
+        lambda r, _: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
         ("static_open", "moving_open")),
     "dop_error": Injection(
         "usarsim", {},
-        lambda r: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
+        lambda r, _: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
         ("static_open", "moving_open")),
 }
 
@@ -194,6 +209,15 @@ def _static_in_scene(scene, rng: np.random.Generator, n: int) -> np.ndarray:
     return np.tile(pts[k], (n, 1))
 
 
+def _low_sats(rx: Receiver, t: np.ndarray, enu: np.ndarray) -> np.ndarray:
+    """(12,) mean number of satellites above the mask and below 30 deg, per 30 deg of
+    azimuth."""
+    sky = compute_sky(rx, t, enu)
+    low = sky.above_mask & (sky.el_deg < 30.0)
+    col = (np.nan_to_num(sky.az_deg[low]) % 360.0 // 30.0).astype(int)
+    return np.bincount(np.clip(col, 0, 11), minlength=12) / len(t)
+
+
 @dataclass(frozen=True)
 class Trial:
     """One pseudo-real run, written to files the diagnosis reads."""
@@ -232,7 +256,8 @@ def make_trial(effect: str, index: int, work: Path, scene, scene_dir: str, scene
         enu = _moving_enu(rng, t) if scenario.startswith("moving") else np.zeros((t.size, 3))
     base, _ = load_profile_dict(inj.base)
     withheld = fx.apply(base, inj.withhold)
-    injected = inj.draw(rng)
+    injected = inj.draw(rng, _low_sats(Receiver(fx.build(withheld), eph, scene if built else None,
+                                                  georef), t, enu))
     real_prof = fx.build(fx.apply(withheld, injected), f"selfcheck {effect}")
     rx = Receiver(real_prof, eph, scene if built else None, georef)
     track = pose.PoseTrack(t, "enu", enu, np.full(enu.shape, np.nan))
