@@ -520,10 +520,19 @@ def greedy(sim: Simulator, base: dict, opts: Options, has_mesh: bool,
         tried.sort(key=lambda tr: tr.after if math.isfinite(tr.after) else math.inf)
         if round_no == 1:
             ranking = [_entry(tr, sim, None) for tr in tried]
-        best = tried[0]
-        if not accept(best, current):
+        # The best clear improvement whose fit on every run changes the profile (one that
+        # the whole data fits at the profile's own value would leave the calibrated profile
+        # as it is: its held-out gain was the folds' luck).
+        best, fitted = None, {}
+        for tr in tried:
+            if not accept(tr, current):
+                continue
+            fitted = fit_all(sim, all_table, tr.cand)
+            if fx.apply(all_table, fitted) != all_table:
+                best = tr
+                break
+        if best is None:
             break
-        fitted = fit_all(sim, all_table, best.cand)
         all_table = fx.apply(all_table, fitted)
         fold_tables = [fx.apply(t, o)
                        for t, o in zip(fold_tables, best.fold_overrides, strict=True)]
@@ -531,7 +540,7 @@ def greedy(sim: Simulator, base: dict, opts: Options, has_mesh: bool,
         current = best.after
         # Later rounds try the most promising candidates of this one (each round re-fits
         # them on top of the effects added so far; an effect far behind stays behind).
-        cands = [tr.cand for tr in tried[1:RETRY_BEST + 1]]
+        cands = [tr.cand for tr in tried if tr is not best][:RETRY_BEST]
         # a newly applicable effect (e.g. multipath once dop_error is in)
         more, _ = fx.candidates(all_table, has_mesh, opts.effects, has_gsv)
         known = {c.name for c in cands} | {s["name"] for s in steps}

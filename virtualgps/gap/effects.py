@@ -136,7 +136,7 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
             return "needs a scene with walls (no run is simulated in a mesh)"
         tracking = _enabled(profile, "cn0_tracking")
         grid = _points(name, on, scattering=(False, True), max_dist_m=(30.0, 50.0),
-                       reflection_loss_db=(4.0, 7.0, 10.0) if tracking else (7.0,))
+                       reflection_loss_db=(3.0, 5.0, 7.0, 9.0, 12.0) if tracking else (7.0,))
         return Candidate(name, grid, ("scattering", "max_dist_m", "reflection_loss_db"))
     if name == "multipath":
         if not dop:
