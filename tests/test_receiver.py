@@ -299,6 +299,12 @@ def test_two_d_fix_with_three_satellites_holds_the_last_altitude_and_reports_dop
     assert gsa.navMode == 2 and gsa.HDOP == pytest.approx(want[0], abs=0.005)
     assert gsa.VDOP == 1.0  # printed 1.00, as MTK firmware prints it
     assert gsa.PDOP == pytest.approx(want[2], abs=0.005)
+    # GST carries the 2D fix's own sigmas (issue #9: ROS turns empty ones into NaN covariances)
+    assert np.isfinite(fixes2.sigma_enu_m).all()
+    fmt = nmea.NmeaFormat.from_dict({"sentences": ["GGA", "GST"]})
+    for line in nmea.epoch_sentences(fixes2, 0, fmt).decode().splitlines()[1::2]:
+        gst = pynmeagps.NMEAReader.parse(line, validate=pynmeagps.VALCKSUM)
+        assert gst.msgID == "GST" and min(gst.stdLat, gst.stdLong, gst.stdAlt) > 0
     # Without a 3D fix before, 3 satellites give no fix.
     cold, _ = simulate(rx_wall, t[3:], np.zeros((3, 3)), np.zeros((3, 3)), np.ones(3, bool),
                        ReceiverState(), np.random.default_rng(1))
@@ -403,6 +409,19 @@ def test_sbas_gives_quality_2_and_smaller_errors():
     # Every UERE term halves, so (same seed, same geometry) every error halves exactly.
     # (to 0.1 mm: metres become degrees by a first-order offset, good to d^2 / R)
     np.testing.assert_allclose(_enu_errors(sbas), 0.5 * _enu_errors(plain), atol=1e-4)
+
+
+def test_two_d_sigmas_with_equal_weights_are_the_2d_dops():
+    """The held height as a measurement weighted like a range: with equal range sigmas the
+    sigmas are sigma x the 2D DOPs MTK firmware prints (HDOP horizontally, VDOP = 1)."""
+    from virtualgps.errors import wls_fix
+
+    los = geodesy.azel_to_enu_unit([0.0, 90.0, 200.0], [70.0, 30.0, 40.0])
+    used = np.ones(3, bool)
+    sig = wls_fix(los, used, np.full(3, 2.5), np.zeros(3), held_height=True)[1]
+    hdop, vdop, _ = dop(los, used)
+    assert np.hypot(sig[0], sig[1]) == pytest.approx(2.5 * hdop, rel=1e-9)
+    assert sig[2] == pytest.approx(2.5 * vdop, rel=1e-9)
 
 
 def test_reported_sigma_matches_the_error_scatter_and_reaches_gst():

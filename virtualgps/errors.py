@@ -202,7 +202,7 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
 
 def wls_fix(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, range_err_m: np.ndarray,
-    n_states: int = 4,
+    n_states: int = 4, held_height: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position error of a weighted least-squares fix made from erroneous ranges, and its sigma.
 
@@ -218,6 +218,10 @@ def wls_fix(
     sigma_m : (..., n_sat) float, metres, range error standard deviations (weights)
     range_err_m : (..., n_sat) float, metres, the range errors
     n_states : 4 (east, north, up, clock) or 3 (east, north, clock: a 2D fix)
+    held_height : with n_states 4, the held height of a 2D fix counts as one more measurement,
+        a row [0, 0, 1, 0] weighted as the mean of the used ranges' weights (as in
+        :func:`virtualgps.receiver.dop`; its error is 0 here): 3 satellites then determine the
+        states, and the sigmas are a 2D fix's own (what GST reports)
 
     Returns
     -------
@@ -233,7 +237,12 @@ def wls_fix(
     # matmul, not einsum: the same sums, ten times faster over thousands of epochs
     normal = gw_t @ g
     rhs = gw_t @ np.where(used, range_err_m, 0.0)[..., None]
-    ok = used.sum(axis=-1) >= n_states
+    n_used = used.sum(axis=-1)
+    ok = n_used >= n_states
+    if held_height and n_states == 4:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal[..., 2, 2] += np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
+        ok = n_used >= 3
     eye = np.eye(n_states)
     safe = np.where(ok[..., None, None], normal, eye)
     regular = np.abs(np.linalg.det(safe)) > 1e-12

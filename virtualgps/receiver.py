@@ -703,6 +703,9 @@ def position_errors(
         k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
         if k.size:
             e2[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
+            # The 2D fix's own sigmas (GST), the held height counted as a measurement.
+            sigma_enu[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k],
+                                          held_height=True)[1]
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
         var += np.square(sigma_enu)
