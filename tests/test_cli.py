@@ -251,3 +251,54 @@ def test_sky_reports_nlos_with_its_weaker_cn0(tmp_path, capsys):
     for p, r in rows.items():  # the effect changes nothing else
         if p not in nlos:
             assert r == plain[p]
+
+
+def _tle_line(body: str) -> str:
+    """A TLE line with its mod-10 checksum (digits count their value, '-' counts 1)."""
+    body = body.ljust(68)
+    return body + str(sum(int(c) if c.isdigit() else c == "-" for c in body) % 10)
+
+
+BAD_ARGUMENTS = [
+    # (arguments with {tmp}, {walk}, {empty}, {binary}, {iss}; exit 0 or the error's words)
+    (["sky", "--scene", "none", "--lla", "-33.86,151.21,50"], 0),
+    (["sky", "--scene", "none", "--origin", "-33.86,151.21,50", "--at", "-3,-4,1.5"], 0),
+    (["sky", "--scene", "none", "--lla", "95,11,0"], "out of range"),
+    (["sky", "--scene", "none", "--lla", "-33.86,151.21"], "LAT,LON,ALT_HAE"),
+    (["sky", "--scene", "none", "--origin", "-91,0,0"], "out of range"),
+    (["sky", "--tle", "{iss}"], "no PRN"),
+    (["sky", "--profile", "no-such-profile"], "no-such-profile"),
+    (["replay", "{walk}", "--out", "{tmp}/no/such/dir/x.nmea"], "No such file or directory"),
+    (["replay", "{walk}", "--out", "{tmp}"], "Is a directory"),
+    (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--fixes", "{tmp}"], "Is a directory"),
+    (["replay", "{empty}", "--out", "{tmp}/x.nmea"], "no poses"),
+    (["replay", "{binary}", "--out", "{tmp}/x.nmea"], "binary.jsonl:1"),
+    (["replay", "{tmp}", "--out", "{tmp}/x.nmea"], "Is a directory"),
+    (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--origin", "-33.86,151.21,50",
+      "--scene", "none"], 0),
+    (["run", "--duration", "1", "--poses", "{tmp}/no-such.jsonl"], "No such file or directory"),
+]
+
+
+@pytest.mark.parametrize(("args", "expect"), BAD_ARGUMENTS, ids=lambda v: " ".join(v)
+                         if isinstance(v, list) else str(v))
+def test_bad_arguments_are_one_clear_line_and_valid_ones_run(tmp_path, args, expect):
+    """Issue #9: every subcommand against bad arguments and paths: one line on stderr naming
+    the problem and a non-zero exit, never a traceback; negative coordinates work as typed."""
+    files = {"tmp": tmp_path, "walk": write_walk(tmp_path / "walk.jsonl", n=6),
+             "empty": tmp_path / "empty.jsonl", "binary": tmp_path / "binary.jsonl",
+             "iss": tmp_path / "iss.tle"}
+    files["empty"].write_bytes(b"")
+    files["binary"].write_bytes(b"\xff\xfe\x00{\"t\": 1}\n")
+    files["iss"].write_text("ISS (ZARYA)\n"
+                            + _tle_line("1 25544U 98067A   17084.52385417  .00002182  00000-0  "
+                                        "40864-4 0  999") + "\n"
+                            + _tle_line("2 25544  51.6420 239.0547 0007205 315.9837 156.5627 "
+                                        "15.54163513 4861") + "\n")
+    r = _cli(*[a.format(**files) for a in args])
+    assert "Traceback" not in r.stderr, r.stderr
+    if expect == 0:
+        assert r.returncode == 0, r.stderr
+        return
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert r.returncode != 0 and len(errors) == 1 and expect in errors[0], r.stderr

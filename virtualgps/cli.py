@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
+import re
 import signal
 import sys
 import threading
@@ -361,7 +363,7 @@ def cmd_sky(args: argparse.Namespace) -> int:
     ephemeris, _ = config.load_ephemeris(cfg, scene_tle)
     t = config.parse_time(args.time) if args.time else time.time()
     if args.lla:
-        lla = _xyz(args.lla, "--lla")
+        lla = np.array(config.parse_origin(args.lla, "--lla"))
         if georef is None:
             georef = config.Georef(*lla)
         at = geodesy.ecef_to_enu(
@@ -496,9 +498,29 @@ def cmd_gap(args: argparse.Namespace) -> int:
 COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky, "gap": cmd_gap}
 
 
+# Options whose value is a comma-separated triple that may start with a minus sign
+# (``--lla -33.86,151.21,50``): argparse takes such a word for an option of its own.
+TRIPLE_OPTIONS = ("--lla", "--at", "--origin")
+NEGATIVE = re.compile(r"-\.?\d")
+
+
+def _join_triples(argv: list[str]) -> list[str]:
+    """``--lla -33.9,151.2,50`` as ``--lla=-33.9,151.2,50``, so negative values parse as typed."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in TRIPLE_OPTIONS and i + 1 < len(argv) and NEGATIVE.match(argv[i + 1]):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``virtualgps`` command; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_join_triples(sys.argv[1:] if argv is None else list(argv)))
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
         format="virtualgps: %(message)s",
@@ -513,3 +535,14 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:
         return 0
+    except BrokenPipeError:
+        # The reader left (``virtualgps sky | head``): nothing more to say, and nothing for
+        # the interpreter to flush at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as exc:  # a path that cannot be read or written: say which, in one line
+        if args.debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"virtualgps: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_ERROR

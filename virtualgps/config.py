@@ -50,16 +50,17 @@ class RunConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def parse_origin(text: str) -> tuple[float, float, float]:
-    """Parse ``LAT,LON,ALT_HAE`` (degrees, degrees, metres) as given to ``--origin``."""
+def parse_origin(text: str, what: str = "origin") -> tuple[float, float, float]:
+    """Parse ``LAT,LON,ALT_HAE`` (degrees, degrees, metres) as given to ``--origin`` or
+    ``--lla`` (``what`` names it in the error)."""
     try:
         lat, lon, alt = (float(v) for v in text.split(","))
     except ValueError:
         raise ConfigError(
-            f"origin must be LAT,LON,ALT_HAE in degrees, degrees, metres, got {text!r}"
+            f"{what} must be LAT,LON,ALT_HAE in degrees, degrees, metres, got {text!r}"
         ) from None
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0 and np.isfinite(alt)):
-        raise ConfigError(f"origin {text!r} is out of range (lat in [-90, 90], lon in [-180, 360))")
+        raise ConfigError(f"{what} {text!r} is out of range (lat in [-90, 90], lon in [-180, 360))")
     return lat, lon, alt
 
 
