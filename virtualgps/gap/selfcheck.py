@@ -360,10 +360,12 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
         summary[effect] = {"trials": len(mine), "ranked_first": hits,
                            "share": hits / len(mine) if mine else float("nan")}
     n = len(rows)
-    wrong = sum(r["ranked_first"] not in (r["injected"],) for r in rows)
+    right = sum(r["ranked_first"] == r["injected"] for r in rows)
+    other = sum(r["ranked_first"] not in (r["injected"], "none") for r in rows)
     result = {"trials": rows, "confusion": confusion, "summary": summary,
-              "share_ranked_first": (n - wrong) / n if n else float("nan"),
-              "share_other_first": wrong / n if n else float("nan"),
+              "share_ranked_first": right / n if n else float("nan"),
+              "share_other_first": other / n if n else float("nan"),
+              "share_none": (n - right - other) / n if n else float("nan"),
               "seeds": opts.seeds, "fit_seeds": opts.n_fit}
     out.mkdir(parents=True, exist_ok=True)
     rp.write_json(result, out / "selfcheck.json")
@@ -374,8 +376,9 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
 def summary_lines(result: dict) -> list[str]:
     """The terminal summary: per effect, how often it was ranked first."""
     lines = [f"self-check: {len(result['trials'])} trials, injected effect ranked first in "
-             f"{100 * result['share_ranked_first']:.0f} %, another in "
-             f"{100 * result['share_other_first']:.0f} %"]
+             f"{100 * result['share_ranked_first']:.0f} %, another effect in "
+             f"{100 * result['share_other_first']:.0f} %, none in "
+             f"{100 * result['share_none']:.0f} %"]
     for effect, s in result["summary"].items():
         others = {k: v for k, v in result["confusion"][effect].items() if k != effect}
         lines.append(f"  {effect}: {s['ranked_first']}/{s['trials']} first"
