@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps import ephemeris as eph
+from virtualgps.bundled import bundled_dir
 from virtualgps.exceptions import ConfigError, VirtualGPSError
 from virtualgps.geodesy import geoid_sep_m
 from virtualgps.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile, read_toml
@@ -23,8 +24,7 @@ from virtualgps.receiver import Georef, Receiver
 
 log = logging.getLogger(__name__)
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-BUNDLED_SCENES_DIR = REPO_ROOT / "scenes"
+BUNDLED_SCENES_DIR = bundled_dir("scenes")
 DEFAULT_SCENE = "magdeburg-campus"
 SKY_SHIFT_MAX_OFFSET_DAYS = 3.0
 

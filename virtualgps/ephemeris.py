@@ -42,14 +42,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from sgp4.api import Satrec, SatrecArray
 
+from virtualgps.bundled import bundled_dir
 from virtualgps.constants import DAY_S, UNIX_EPOCH_JD
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.geodesy import teme_to_ecef, unix_to_jd
 
 F64 = NDArray[np.float64]
 
-# The pinned TLE sets live beside the package, in the repository's ephemeris/ folder.
-BUNDLED_EPHEMERIS_DIR = Path(__file__).resolve().parents[1] / "ephemeris"
+# The pinned TLE sets: the repository's ephemeris/ folder, packaged into wheels.
+BUNDLED_EPHEMERIS_DIR = bundled_dir("ephemeris")
 # The newest bundled set is the default (see ephemeris/README.md for sources and epochs).
 DEFAULT_TLE_NAME = "gps-ops-2020-05-14T22Z.tle"
 
