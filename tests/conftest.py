@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+# Fetched TLE sets in the user's cache take precedence where they fit a run's time: the tests
+# (and the commands they start) see an empty cache of their own, never the user's.
+os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="virtualgps-test-cache-")
 
 
 @pytest.fixture(scope="session")

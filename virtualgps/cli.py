@@ -141,6 +141,15 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--trials", type=int, default=3,
                      help="self-check trials per effect (default 3)")
     gap.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+
+    ephem = sub.add_parser("ephemeris", help="today's sky: fetch current GPS TLE sets, list them",
+                           description="'fetch' downloads the current GPS TLE set into the "
+                           "user cache; run and sky then use the cached set nearest their time "
+                           "when it is fresh. 'list' shows the cached sets.")
+    ephem.add_argument("action", choices=("fetch", "list"))
+    ephem.add_argument("--url", help="where to fetch from (default: CelesTrak's GP query for "
+                       "the GPS operational group)")
+    ephem.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
     return parser
 
 
@@ -200,9 +209,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
-    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle)
     clock = daemon.SimClock(cfg.start_time_unix_s)
     t0 = clock.now_unix_s()
+    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle, t0)
     prof = cfg.profile
     log.info(
         "profile %s (%s), scene %s, TLE %s, seed %d, rate %g Hz, baud %d",
@@ -360,8 +369,8 @@ def cmd_sky(args: argparse.Namespace) -> int:
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
-    ephemeris, _ = config.load_ephemeris(cfg, scene_tle)
     t = config.parse_time(args.time) if args.time else time.time()
+    ephemeris, _ = config.load_ephemeris(cfg, scene_tle, t)
     if args.lla:
         lla = np.array(config.parse_origin(args.lla, "--lla"))
         if georef is None:
@@ -495,7 +504,30 @@ def cmd_gap(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky, "gap": cmd_gap}
+def cmd_ephemeris(args: argparse.Namespace) -> int:
+    from virtualgps import tlecache
+
+    if args.action == "fetch":
+        c = tlecache.fetch(args.url or tlecache.CELESTRAK_GPS_URL)
+        print(f"{c.path}: {c.n_sat} GPS satellites, epoch {_utc(c.epoch_center_unix_s)}, "
+              f"from {c.url}")
+        return 0
+    sets = tlecache.cached_sets()
+    if not sets:
+        print(f"no fetched TLE sets in {tlecache.cache_dir()} ('virtualgps ephemeris fetch')")
+    for c in sets:
+        age_d = (time.time() - c.fetched_unix_s) / 86400.0
+        print(f"{c.path}: {c.n_sat} satellites, epoch {_utc(c.epoch_center_unix_s)}, fetched "
+              f"{age_d:.1f} days ago from {c.url}")
+    return 0
+
+
+def _utc(t_unix_s: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime(t_unix_s))
+
+
+COMMANDS = {"run": cmd_run, "replay": cmd_replay, "sky": cmd_sky, "gap": cmd_gap,
+            "ephemeris": cmd_ephemeris}
 
 
 # Options whose value is a comma-separated triple that may start with a minus sign

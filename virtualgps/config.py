@@ -9,6 +9,7 @@ route), and any profile key or table, which overrides the profile's.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -190,16 +191,31 @@ def load_scene_for(cfg: RunConfig):  # -> (Scene | None, Georef | None, default 
     return scene, georef, scene_tle
 
 
-def load_ephemeris(cfg: RunConfig, scene_tle: Path | None):
-    """Load ``--tle`` (a TLE file or a lookup table), else the scene's set, else the newest bundled.
+def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float | None = None):
+    """Load ``--tle`` (a TLE file or a lookup table), else a fetched set that fits the start
+    time (:mod:`virtualgps.tlecache`), else the scene's set, else the newest bundled.
+
+    Parameters
+    ----------
+    t_start_unix_s : the run's start, UTC seconds (None: fetched sets are not considered)
 
     Returns
     -------
     ephemeris : Constellation or LookupTable
     path : the file it came from
     """
+    from virtualgps import tlecache
+
+    fetched = None
+    if cfg.tle is None and t_start_unix_s is not None:
+        fetched = tlecache.set_for(t_start_unix_s, SKY_SHIFT_MAX_OFFSET_DAYS)
     if cfg.tle is not None:
         path = Path(cfg.tle)
+    elif fetched is not None:
+        path = fetched.path
+        log.info("TLE set fetched %.1f days ago from %s (%d satellites, epoch %.1f days from "
+                 "the start)", (time.time() - fetched.fetched_unix_s) / 86400.0, fetched.url,
+                 fetched.n_sat, (t_start_unix_s - fetched.epoch_center_unix_s) / 86400.0)
     elif scene_tle is not None:
         path = Path(scene_tle)
     else:
