@@ -44,8 +44,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tle",
-        help="TLE file or satellite lookup table (default: the scene's set, "
-        "else the newest bundled set)",
+        help="TLE file, RINEX 2/3 GPS navigation file (broadcast orbits) or satellite lookup "
+        "table (default: a fetched set that fits the time, else the scene's set, else the "
+        "newest bundled set)",
     )
     p.add_argument("--rate", type=float, help="output rate in Hz (default: the profile's, 1 Hz)")
     p.add_argument("--start-time", help="simulated UTC start, ISO 8601 (default: now)")
@@ -121,7 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "(repeat, in the order of --real)")
     gap.add_argument("--scene", help="scene folder or scene.toml, or 'none' (default: the "
                      "bundled magdeburg-campus; runs far from it are simulated in open sky)")
-    gap.add_argument("--tle", help="TLE file (default: the scene's set, else the newest bundled)")
+    gap.add_argument("--tle", help="TLE file or RINEX GPS navigation file (default: the "
+                     "scene's set, else the newest bundled)")
     gap.add_argument("--profile", default="holux-m1000",
                      help="the profile under test (default holux-m1000)")
     gap.add_argument("--out", required=True, metavar="DIR", help="output folder")

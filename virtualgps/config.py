@@ -222,9 +222,7 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
         path = eph.default_tle_path()
     if not path.exists():
         raise ConfigError(f"TLE file {path} not found (give --tle PATH to a TLE file)")
-    if eph.is_lookup_table(path):
-        return eph.read_lookup_table(path), path
-    return eph.load_tle(path), path
+    return eph.load_ephemeris_file(path), path
 
 
 def make_receiver(

@@ -911,6 +911,25 @@ def sidereal_shift_s(
     return float(round(offset_s / repeat_s)) * float(repeat_s)
 
 
+def load_ephemeris_file(path: str | Path):
+    """Satellites from any ephemeris file ``--tle`` accepts: a lookup table
+    (:func:`write_lookup_table`), a RINEX 2/3 GPS navigation file (broadcast orbits,
+    :mod:`virtualgps.broadcast`) or a TLE set.
+
+    Returns
+    -------
+    ephemeris : LookupTable, BroadcastEphemeris or Constellation (one interface: ``prn``,
+        ``sat_ecef_m``, ``sat_state_ecef``, ``epoch_center_unix_s``)
+    """
+    from virtualgps import broadcast
+
+    if is_lookup_table(path):
+        return read_lookup_table(path)
+    if broadcast.is_rinex_nav(path):
+        return broadcast.read_rinex_nav(path)
+    return load_tle(path)
+
+
 __all__ = [
     "BUNDLED_EPHEMERIS_DIR",
     "DEFAULT_TLE_NAME",
@@ -920,6 +939,7 @@ __all__ = [
     "build_lookup_table",
     "default_tle_path",
     "is_lookup_table",
+    "load_ephemeris_file",
     "load_tle",
     "read_lookup_table",
     "read_prn_table",

@@ -153,8 +153,7 @@ def _ephemeris(path: str):
     if path not in _EPHEMERIDES:
         from virtualgps import ephemeris as eph
 
-        p = Path(path)
-        _EPHEMERIDES[path] = eph.read_lookup_table(p) if eph.is_lookup_table(p) else eph.load_tle(p)
+        _EPHEMERIDES[path] = eph.load_ephemeris_file(Path(path))
     return _EPHEMERIDES[path]
 
 

@@ -163,9 +163,8 @@ def diagnose(
 
 
 def _ephemeris(path: str):
-    """The ephemeris at ``path`` (TLE set or lookup table)."""
-    p = Path(path)
-    return eph.read_lookup_table(p) if eph.is_lookup_table(p) else eph.load_tle(p)
+    """The ephemeris at ``path`` (TLE set, RINEX navigation file or lookup table)."""
+    return eph.load_ephemeris_file(Path(path))
 
 
 def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: str,
