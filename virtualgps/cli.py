@@ -85,16 +85,18 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--serial", help="drive this real serial port instead of a pty")
     run.add_argument("--baud", type=int, help="baud rate (default: the profile's, 38400)")
     run.add_argument("--duration", type=float, help="stop after this many seconds")
+    run.add_argument("--topic", help="the pose topic of a ROS bag given to --poses")
 
     rep = sub.add_parser(
         "replay",
         help="run the receiver over a pose log as fast as possible",
-        description="Replay a pose log (JSONL, CSV, TUM, NMEA) and write NMEA.",
+        description="Replay a pose log (JSONL, CSV, TUM, NMEA, ROS 1/2 bag) and write NMEA.",
     )
     _common(rep)
     rep.add_argument("poses", help="pose log file")
     rep.add_argument("--out", required=True, help="NMEA output file ('-' for stdout)")
     rep.add_argument("--fixes", help="also write one CSV row per epoch here")
+    rep.add_argument("--topic", help="the pose topic, for a ROS bag with several")
 
     sky = sub.add_parser("sky", help="what the antenna sees at one place and time")
     _common(sky)
@@ -231,7 +233,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     spec = args.poses
     is_log = spec != "demo" and not spec.startswith(("udp://", "tcp://")) and spec != "-"
     if georef is None and is_log:
-        track = pose.read_pose_log(Path(spec))
+        track = pose.read_pose_log(Path(spec), args.topic)
         if track.frame != "geodetic":
             config.require_georef(None, "geodetic poses")
         georef = config.Georef(*(float(v) for v in track.xyz[0]))
@@ -257,7 +259,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         from virtualgps.replay import track_in_scene
 
-        track = pose.read_pose_log(Path(spec))
+        track = pose.read_pose_log(Path(spec), args.topic)
         provider = daemon.TrackProvider(track_in_scene(track, georef), t0, prof.pose_timeout_s)
 
     rx = config.make_receiver(cfg, scene, georef, ephemeris, t0)
@@ -315,7 +317,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
     ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle)
-    track = pose.read_pose_log(Path(args.poses))
+    track = pose.read_pose_log(Path(args.poses), args.topic)
     if georef is None:
         if track.frame != "geodetic":
             config.require_georef(None, "a geodetic pose log")

@@ -484,7 +484,7 @@ def _is_float(s: str) -> bool:
     return True
 
 
-def read_pose_log(path: str | Path) -> PoseTrack:
+def read_pose_log(path: str | Path, topic: str | None = None) -> PoseTrack:
     """Read a pose log, its format detected from the extension or the content.
 
     Formats (DESIGN section 4): ``.jsonl`` (one pose message per line, ``t`` required); ``.csv``
@@ -493,17 +493,20 @@ def read_pose_log(path: str | Path) -> PoseTrack:
     ``alt_msl_m``, ``x_m`` and ``vx_mps`` are accepted too); TUM trajectories (``t x y z qx qy qz
     qw``, ``#`` comments; x, y, z taken as scene ENU, the orientation ignored); NMEA logs (GGA
     fixes with quality > 0, dated by RMC/ZDA; height = altitude MSL + geoid separation, EGM96
-    where the field is empty; lines with bad checksums are skipped, as a real log holds some).
+    where the field is empty; lines with bad checksums are skipped, as a real log holds some);
+    ROS 1 and ROS 2 bags (:mod:`virtualgps.rosbag`; ``topic`` picks one where several fit).
 
     Times must not decrease; a pose repeating the previous pose's time exactly is dropped.
 
     Parameters
     ----------
-    path : the log file
+    path : the log file (or ROS 2 bag folder)
+    topic : the bag topic to read (bags only)
 
     Returns
     -------
-    PoseTrack : ``"enu"`` (jsonl/csv with x,y,z; TUM) or ``"geodetic"`` (lat/lon; NMEA)
+    PoseTrack : ``"enu"`` (jsonl/csv with x,y,z; TUM; PoseStamped, Odometry) or ``"geodetic"``
+        (lat/lon; NMEA; NavSatFix)
 
     Raises
     ------
@@ -511,7 +514,13 @@ def read_pose_log(path: str | Path) -> PoseTrack:
         naming the file, the line and the expected layout, for any malformed line, mixed
         frames, decreasing times or a log without poses.
     """
+    from virtualgps import rosbag
+
     path = Path(path)
+    if rosbag.is_bag(path):
+        return rosbag.read_bag(path, topic)
+    if topic is not None:
+        raise InputFileError(path, f"--topic {topic} is for ROS bags; this is not one")
     try:
         lines = read_text_lines(path)
     except OSError as e:

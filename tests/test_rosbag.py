@@ -1,0 +1,139 @@
+"""ROS bags as pose logs (issue #9): bags written here with rosbags (ROS 1 .bag; ROS 2 .db3 and
+.mcap), replayed, and compared byte for byte with the same poses replayed from JSONL."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from virtualgps import geodesy
+
+pytest.importorskip("rosbags")
+
+from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin  # noqa: E402
+from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+T0 = 1490712768.0  # 2017-03-28T14:52:48Z, the Magdeburg waypoint logs
+N = 30
+# A walk across the Magdeburg campus between buildings, 1.5 m above the ground (scene ENU).
+XYZ = np.column_stack([-60.0 + 1.4 * np.arange(N), np.full(N, -80.0), np.full(N, 55.0)])
+T = T0 + np.arange(N, dtype=float)
+ORIGIN = (52.14, 11.645, 100.0)  # open-sky runs: geodetic poses around here
+
+
+def _stamp(ts, t: float, ros1: bool):
+    stamp = ts.types["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round(t % 1 * 1e9)))
+    fields = {"stamp": stamp, "frame_id": "map"}
+    return ts.types["std_msgs/msg/Header"](**({"seq": 0} | fields if ros1 else fields))
+
+
+def _point_pose(ts, xyz):
+    msg = ts.types
+    return msg["geometry_msgs/msg/Pose"](
+        position=msg["geometry_msgs/msg/Point"](x=xyz[0], y=xyz[1], z=xyz[2]),
+        orientation=msg["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+
+
+def _messages(ts, kind: str, ros1: bool):
+    """(time, message) of one pose message type along the walk."""
+    m = ts.types
+    out = []
+    lla = np.column_stack(geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(
+        np.column_stack([XYZ[:, :2], np.zeros(N)]), *ORIGIN)))
+    for i, t in enumerate(T):
+        h = _stamp(ts, t, ros1)
+        if kind == "pose":
+            msg = m["geometry_msgs/msg/PoseStamped"](header=h, pose=_point_pose(ts, XYZ[i]))
+        elif kind == "odom":
+            v3 = m["geometry_msgs/msg/Vector3"]
+            twist = m["geometry_msgs/msg/Twist"](linear=v3(x=1.4, y=0.0, z=0.0),
+                                                 angular=v3(x=0.0, y=0.0, z=0.0))
+            msg = m["nav_msgs/msg/Odometry"](
+                header=h, child_frame_id="base_link",
+                pose=m["geometry_msgs/msg/PoseWithCovariance"](pose=_point_pose(ts, XYZ[i]),
+                                                               covariance=np.zeros(36)),
+                twist=m["geometry_msgs/msg/TwistWithCovariance"](twist=twist,
+                                                                 covariance=np.zeros(36)))
+        else:
+            status = m["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
+            msg = m["sensor_msgs/msg/NavSatFix"](
+                header=h, status=status, latitude=lla[i, 0], longitude=lla[i, 1],
+                altitude=lla[i, 2], position_covariance=np.zeros(9),
+                position_covariance_type=0)
+        out.append((t, msg))
+    return out
+
+
+TYPES = {"pose": "geometry_msgs/msg/PoseStamped", "odom": "nav_msgs/msg/Odometry",
+         "fix": "sensor_msgs/msg/NavSatFix"}
+
+
+def write_bag(path: Path, topics: dict[str, str], storage: str) -> Path:
+    """A bag with the walk on each topic ({topic: kind}); storage 'bag', 'db3' or 'mcap'."""
+    ros1 = storage == "bag"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    plugin = {"db3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}.get(storage)
+    writer = Writer1(path) if ros1 else Writer2(path, version=9, storage_plugin=plugin)
+    with writer as w:
+        for topic, kind in topics.items():
+            conn = w.add_connection(topic, TYPES[kind], typestore=ts)
+            for t, msg in _messages(ts, kind, ros1):
+                raw = (ts.serialize_ros1 if ros1 else ts.serialize_cdr)(msg, TYPES[kind])
+                w.write(conn, int(t * 1e9) + 5_000_000, raw)  # recorded 5 ms after the stamp
+    return path
+
+
+def _replay(poses: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "virtualgps", "replay", str(poses), "--out",
+                           str(out), "--seed", "3", *extra], capture_output=True, text=True,
+                          timeout=120)
+
+
+def _jsonl(path: Path, geodetic: bool) -> Path:
+    if geodetic:
+        lla = geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(
+            np.column_stack([XYZ[:, :2], np.zeros(N)]), *ORIGIN))
+        rows = [{"t": t, "lat": a, "lon": b, "alt": c} for t, a, b, c in zip(T, *lla, strict=True)]
+    else:
+        rows = [{"t": t, "x": x, "y": y, "z": z} for t, (x, y, z) in zip(T, XYZ, strict=True)]
+    path.write_text("".join(json.dumps({k: float(v) for k, v in r.items()}) + "\n" for r in rows))
+    return path
+
+
+@pytest.mark.parametrize(("storage", "kind"), [("bag", "pose"), ("db3", "odom"),
+                                               ("mcap", "fix"), ("bag", "fix")])
+def test_bag_replays_as_its_poses_do(tmp_path, storage, kind):
+    name = "walk.bag" if storage == "bag" else "walk"
+    bag = write_bag(tmp_path / name, {f"/{kind}": kind}, storage)
+    geodetic = kind == "fix"
+    extra = ["--scene", "none"] if geodetic else []
+    r_bag = _replay(bag, tmp_path / "bag.nmea", *extra)
+    r_ref = _replay(_jsonl(tmp_path / "ref.jsonl", geodetic), tmp_path / "ref.nmea", *extra)
+    assert r_bag.returncode == 0 and r_ref.returncode == 0, r_bag.stderr + r_ref.stderr
+    nmea = (tmp_path / "bag.nmea").read_bytes()
+    assert nmea.count(b"$GPGGA") == N and nmea == (tmp_path / "ref.nmea").read_bytes()
+    if storage != "bag":  # a ROS 2 bag's storage file names the bag too
+        (store,) = bag.glob(f"*.{storage}")
+        assert _replay(store, tmp_path / "s.nmea", *extra).returncode == 0
+
+
+def test_topic_picks_one_and_errors_name_the_candidates(tmp_path):
+    bag = write_bag(tmp_path / "two.bag", {"/robot/pose": "pose", "/robot/odom": "odom"}, "bag")
+    r = _replay(bag, tmp_path / "x.nmea")
+    assert r.returncode != 0 and "/robot/pose (geometry_msgs/msg/PoseStamped)" in r.stderr
+    assert "/robot/odom (nav_msgs/msg/Odometry)" in r.stderr and "--topic" in r.stderr
+    assert _replay(bag, tmp_path / "x.nmea", "--topic", "/robot/odom").returncode == 0
+    r = _replay(bag, tmp_path / "x.nmea", "--topic", "/nope")
+    assert r.returncode != 0 and "/nope is not in the bag" in r.stderr
+    assert "Traceback" not in r.stderr
+    broken = tmp_path / "broken.bag"
+    broken.write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 64)
+    r = _replay(broken, tmp_path / "x.nmea")
+    assert r.returncode != 0 and "broken.bag" in r.stderr and "Traceback" not in r.stderr
