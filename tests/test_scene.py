@@ -170,6 +170,33 @@ def test_bad_obj_names_the_line(tmp_path):
         load_scene(tmp_path)
 
 
+def test_parsed_meshes_are_cached_by_content(tmp_path, monkeypatch):
+    """Issue #9: the parsed mesh is kept in the user cache, keyed by the file's content; a
+    cached load gives the same arrays, an edited file is parsed afresh, a broken cache file is
+    rebuilt."""
+    from virtualgps import scene as sc
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    obj = tmp_path / "m.obj"
+    obj.write_text("o Wall1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n"
+                   "o Tree2\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf 5 6 7\n")
+    first = sc._load_mesh(obj)
+    (cached,) = (tmp_path / "cache" / "virtualgps" / "mesh").glob("*.npz")
+    monkeypatch.setattr(sc, "_read_obj", lambda p: pytest.fail("parsed again"))
+    again = sc._load_mesh(obj)
+    for a, b in zip(first[:3], again[:3], strict=True):
+        np.testing.assert_array_equal(a, b)
+        assert a.dtype == b.dtype
+    assert again[3] == first[3] == [("Wall1", "m"), ("Tree2", "m")]
+    monkeypatch.undo()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    obj.write_text(obj.read_text().replace("v 1 1 0", "v 2 2 0"))  # edited: a new key
+    assert sc._load_mesh(obj)[0][3, 0] == 2.0
+    cached.write_bytes(b"not a cache")
+    obj.write_text(obj.read_text().replace("v 2 2 0", "v 1 1 0"))
+    np.testing.assert_array_equal(sc._load_mesh(obj)[0], first[0])
+
+
 def test_glb_and_stl_take_object_names_from_the_scene_graph(tmp_path, wall_scene):
     """The test scene exported through trimesh (GLB with named nodes) loads with the same
     classes and blocks the same rays; a single-mesh STL is one object named after its file."""

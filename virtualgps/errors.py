@@ -6,10 +6,13 @@ uniforms per epoch keeps batch and epoch-by-epoch runs identical.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from virtualgps.constants import WGS84_A_M
 
+LFILTER_MIN_RUN = 1000  # epochs of one step before scipy.signal's lfilter is imported
 IONO_SHELL_HEIGHT_M = 350e3  # thin-shell ionosphere height, IS-GPS-200 / Klobuchar
 
 
@@ -183,8 +186,11 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     starts = np.flatnonzero(np.concatenate(([n > 0], p[1:] != p[:-1])))
     bounds = np.append(starts, n)
     prev = y0
+    # scipy.signal costs ~0.3 s to import, the plain recursion ~1.5 us an epoch: a short run
+    # (a live epoch, a short replay) keeps to the recursion unless scipy.signal is loaded.
+    min_run = 8 if "scipy.signal" in sys.modules else LFILTER_MIN_RUN
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        if b - a > 8:
+        if b - a > min_run:
             from scipy.signal import lfilter
 
             y[a] = p[a] * prev + u[a]

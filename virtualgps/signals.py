@@ -165,7 +165,7 @@ class Facades:
     offset_m : (n,) float, metres, plane offsets: normal . x = offset on the plane
     lo_m, hi_m : (n, 3) float, metres, scene ENU bounding box of each plane's triangles
     index_xy, index_owner : points every INDEX_STEP_M along the planes' footprints, and their
-        plane; tree : scipy cKDTree over ``index_xy``
+        plane
     along : (n, 2) float, horizontal unit vectors along each plane (perpendicular to its normal)
     ends_s : (n, 2) float, metres, the footprint's ends as positions along ``along``
     footprint_xy_m : (n, 2, 2) float, metres, scene east/north of the footprint's two ends
@@ -180,8 +180,6 @@ class Facades:
         face_object: np.ndarray | None = None,
         max_tilt_deg: float = 10.0,
     ) -> None:
-        from scipy.spatial import cKDTree
-
         tri = vertices_enu_m[faces]  # (n, 3, 3)
         nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(nrm, axis=1)
@@ -224,7 +222,6 @@ class Facades:
         pos = ends_s[owner, 0] + frac * (ends_s[owner, 1] - ends_s[owner, 0])
         self.index_xy = base[owner] + pos[:, None] * along[owner]
         self.index_owner = owner
-        self.tree = cKDTree(self.index_xy) if len(owner) else None
         self.along = along
         self.ends_s = ends_s
         self.footprint_xy_m = base[:, None, :] + ends_s[:, :, None] * along[:, None, :]
@@ -269,7 +266,7 @@ class Facades:
         query, plane : (k,) int, no pair twice (grouped by cell)
         """
         m = len(xy_m)
-        if self.tree is None or m == 0:
+        if len(self.index_owner) == 0 or m == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         cell = np.floor(xy_m / CELL_M).astype(np.int64)
         key, first, inverse = _cell_groups(cell)
@@ -283,9 +280,9 @@ class Facades:
                 missing = list(range(len(key_list)))
             centres = (cell[first[missing]] + 0.5) * CELL_M
             half_diag = CELL_M * np.sqrt(0.5) + 1e-6  # from the centre to any point of the cell
-            near = self.tree.query_ball_point(centres, radius_m + half_diag)
+            near = self._index_within(centres, radius_m + half_diag)
             for i, c, pts in zip(missing, centres, near, strict=True):
-                planes = np.unique(self.index_owner[np.asarray(pts, np.intp)])
+                planes = np.unique(self.index_owner[pts])
                 off = np.abs(self.normal[planes, :2] @ c - self.offset_m[planes])
                 cache[key_list[i]] = planes[off <= plane_dist_m + half_diag]
         if len(key_list) == 1:
@@ -297,6 +294,18 @@ class Facades:
         query = [np.repeat(g, cache[k].size) for k, g in zip(key_list, groups, strict=True)]
         plane = [np.tile(cache[k], g.size) for k, g in zip(key_list, groups, strict=True)]
         return np.concatenate(query), np.concatenate(plane)
+
+    def _index_within(self, centres_m: np.ndarray, radius_m: float) -> list[np.ndarray]:
+        """Per centre ((c, 2) metres), the index points within ``radius_m`` of it (brute force
+        in blocks: a few cells at a time against some thousand index points is cheaper than
+        importing and building a k-d tree)."""
+        out = []
+        r2 = radius_m * radius_m
+        for a in range(0, len(centres_m), 256):
+            d = centres_m[a : a + 256, None, :] - self.index_xy[None, :, :]
+            within = np.einsum("cij,cij->ci", d, d) <= r2
+            out += [np.flatnonzero(w) for w in within]
+        return out
 
     def index_dist_m(self, xy_m: np.ndarray, plane: np.ndarray) -> np.ndarray:
         """Distance from each point to the nearest index point of its plane (closed form).
@@ -345,7 +354,7 @@ class Facades:
         """
         ant = np.asarray(antenna_enu_m, dtype=float)
         m = len(ant)
-        if self.tree is None or m == 0:
+        if len(self.index_owner) == 0 or m == 0:
             return np.full(m, np.inf)
         cell = np.floor(ant[:, :2] / CELL_M)
         if (cell == cell[0]).all():  # one cell (the live loop's epoch): no grouping to do

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from virtualgps import ephemeris as eph
 from virtualgps.exceptions import VirtualGPSError
+from virtualgps.usercache import user_cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +51,7 @@ class CachedSet:
 
 def cache_dir() -> Path:
     """The TLE cache folder: ``$XDG_CACHE_HOME/virtualgps/tle``, else ``~/.cache/...``."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "virtualgps" / "tle"
+    return user_cache_dir("tle")
 
 
 def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
