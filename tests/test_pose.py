@@ -267,6 +267,41 @@ def test_jsonl_log(tmp_path):
     assert tr.xyz[1].tolist() == [1, 0, 0] and tr.vel_enu_mps[1, 0] == 1.0  # duplicate dropped
 
 
+@pytest.mark.parametrize("geodetic", [False, True])
+@pytest.mark.parametrize("with_velocity", [False, True])
+def test_uniform_jsonl_reads_as_line_by_line(tmp_path, geodetic, with_velocity):
+    """The vectorised reader of plain logs gives what the line-by-line one gives (an ignored
+    extra key sends the same log down the line-by-line path); out-of-range values, bools and
+    nulls fall back to it, so its error names the line."""
+    rng = np.random.default_rng(5)
+    n = 200
+    keys = ("lat", "lon", "alt") if geodetic else ("x", "y", "z")
+    pos = rng.uniform([50, 10, 0], [52, 12, 300], (n, 3)) if geodetic else \
+        rng.uniform(-500, 500, (n, 3))
+    rows = [{"t": 1.49e9 + i * 0.1, **dict(zip(keys, map(float, p), strict=True))}
+            for i, p in enumerate(pos)]
+    rows[3][keys[0]] = int(round(pos[3, 0]))  # a whole number is a number too
+    if with_velocity:
+        for r in rows:
+            r.update(vx=float(rng.normal()), vy=1, vz=0.0)
+    fast, slow = tmp_path / "fast.jsonl", tmp_path / "slow.jsonl"
+    fast.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    slow.write_text("".join(json.dumps({**r, "note": "x"}) + "\n" for r in rows))
+    assert pose._jsonl_uniform(fast.read_text().splitlines()) is not None
+    assert pose._jsonl_uniform(slow.read_text().splitlines()) is None
+    a, b = pose.read_pose_log(fast), pose.read_pose_log(slow)
+    assert a.frame == b.frame == ("geodetic" if geodetic else "enu")
+    for x, y in ((a.t_unix_s, b.t_unix_s), (a.xyz, b.xyz), (a.vel_enu_mps, b.vel_enu_mps)):
+        np.testing.assert_array_equal(x, y)
+    for bad in ({keys[0]: True}, {keys[1]: None}, {"t": -5.0}, {keys[2]: 1e12}):
+        broken = [dict(r) for r in rows]
+        broken[7].update(bad)
+        fast.write_text("".join(json.dumps(r) + "\n" for r in broken))
+        with pytest.raises(InputFileError) as e:
+            pose.read_pose_log(fast)
+        assert e.value.line == 8
+
+
 @pytest.mark.parametrize(
     "text, line, what",
     [

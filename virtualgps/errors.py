@@ -6,13 +6,12 @@ uniforms per epoch keeps batch and epoch-by-epoch runs identical.
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from virtualgps.constants import WGS84_A_M
 
-LFILTER_MIN_RUN = 1000  # epochs of one step before scipy.signal's lfilter is imported
+LOOP_EPOCHS_BEFORE_LFILTER = 400_000  # see first_order_recursion
+_loop_epochs = 0  # epochs this process has run through the plain recursion
 IONO_SHELL_HEIGHT_M = 350e3  # thin-shell ionosphere height, IS-GPS-200 / Klobuchar
 
 
@@ -164,6 +163,13 @@ def gauss_markov(
     return first_order_recursion(np.asarray(x0, dtype=float), phi, drive)
 
 
+def prefer_lfilter() -> None:
+    """Filter long runs with scipy.signal's lfilter from now on (a process that will simulate
+    millions of epochs: its import pays at once)."""
+    global _loop_epochs
+    _loop_epochs = LOOP_EPOCHS_BEFORE_LFILTER + 1
+
+
 def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:
     """y_k = p_k y_(k-1) + u_k over epochs, for several series at once.
 
@@ -186,18 +192,22 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     starts = np.flatnonzero(np.concatenate(([n > 0], p[1:] != p[:-1])))
     bounds = np.append(starts, n)
     prev = y0
-    # scipy.signal costs ~0.3 s to import, the plain recursion ~1.5 us an epoch: a short run
-    # (a live epoch, a short replay) keeps to the recursion unless scipy.signal is loaded.
-    min_run = 8 if "scipy.signal" in sys.modules else LFILTER_MIN_RUN
+    # scipy.signal costs 0.3-0.5 s to import, the plain recursion ~1.2 us an epoch: a process
+    # keeps to the recursion (live epochs, replays of an hour at 10 Hz) until it has run
+    # LOOP_EPOCHS_BEFORE_LFILTER epochs of it, or is told it will run many
+    # (:func:`prefer_lfilter`, the gap tool's ensembles).
+    global _loop_epochs
+    fast = _loop_epochs > LOOP_EPOCHS_BEFORE_LFILTER
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        if b - a > min_run:
+        if fast and b - a > 8:
             from scipy.signal import lfilter
 
             y[a] = p[a] * prev + u[a]
             c = float(p[a])
             y[a + 1 : b] = lfilter([1.0], [1.0, -c], u[a + 1 : b], axis=0,
                                    zi=(c * y[a])[None, :])[0]
-        else:  # a few epochs (the live loop): the plain recursion is cheaper
+        else:
+            _loop_epochs += b - a
             for k in range(a, b):
                 prev = p[k] * prev + u[k]
                 y[k] = prev

@@ -203,6 +203,9 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
     -------
     ensemble : the seeds' outputs
     """
+    from virtualgps.errors import prefer_lfilter
+
+    prefer_lfilter()  # an ensemble simulates millions of epochs
     setup, prof = job.setup, job.profile
     rx = receiver_for(setup, prof)
     sky = run_sky(rx, setup)
