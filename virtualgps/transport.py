@@ -74,6 +74,9 @@ _RX_MAX_BYTES = 65536
 # "POLLHUP cleared" (poll() reports POLLHUP at once while it holds), so this is polled; 50 ms is
 # far below one epoch at any rate a GPS emits.
 _IDLE_POLL_S = 0.05
+# An attached writer with nothing queued and nothing unread sleeps until an event wakes it; this
+# is only a safety net.
+_IDLE_ATTACHED_S = 1.0
 
 # Output pacing: write the line's bytes in slices of about this duration, at absolute wake times.
 _CHUNK_S = 0.01
@@ -734,7 +737,10 @@ class PtyDevice(OutputDevice):
             self._kernel_unread = in_kernel
             self._queue.trim(now_s, in_kernel)
             if not self._queue:
-                return _IDLE_POLL_S, next_send_s
+                # Nothing to send. Bytes the client has still to read must be watched for
+                # going stale; otherwise only a new epoch (the wake event), client bytes or
+                # a hang-up (the master's POLLIN/POLLHUP) can need us.
+                return (_IDLE_POLL_S if in_kernel else _IDLE_ATTACHED_S), next_send_s
             if next_send_s < now_s - _CHUNK_S:
                 next_send_s = now_s  # idle or badly late: restart the line clock, no burst
             if next_send_s > now_s:
