@@ -5,11 +5,14 @@ Usage (pin to one core, as the README's figures were measured):
     taskset -c 0 python tools/bench_replay.py [--profile NAME] [--hours 1] [--live-epochs 2000]
         [--repeat 5]
     taskset -c 0 python tools/bench_replay.py --whole-process [--repeat 5]
+    python tools/bench_replay.py --daemon [--seconds 30]
 
 ``--whole-process`` times whole ``virtualgps replay`` processes (interpreter start-up, imports
 and all): a 20-epoch replay, and the 1 h walk at 10 Hz (36,000 epochs) paired, run by run,
 with nmeasim's ``Simulator().generate`` of as many epochs (no physics: a reference for what
-writing NMEA alone costs in Python; ``pip install nmeasim``).
+writing NMEA alone costs in Python; ``pip install nmeasim``). ``--daemon`` measures whole
+``virtualgps run --poses demo`` processes at 1 Hz and 10 Hz, a client reading the device: CPU
+time (all threads, from /proc) per epoch and as a share of a core.
 
 Replay: a 1 h, 1 Hz walk (the scene's demo loop) written as a JSONL pose log, replayed through
 ``virtualgps replay`` (the CLI's code path, in-process), NMEA to a file: epochs per second of
@@ -180,6 +183,50 @@ def bench_whole_process(repeat: int, profile: str) -> None:
             print("nmeasim not installed (pip install nmeasim): no comparison")
 
 
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (all its threads), from /proc."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def bench_daemon(rate_hz: float, seconds: float, profile: str) -> float:
+    """CPU seconds per epoch of a whole ``virtualgps run --poses demo`` process (simulation,
+    NMEA, the pty writer's pacing, pose input) at ``rate_hz``, 115200 baud, with a client
+    reading the device, over ``seconds`` after a 5 s warm-up."""
+    import subprocess
+    import threading
+
+    with tempfile.TemporaryDirectory() as tmp:
+        link = Path(tmp) / "gps"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "virtualgps", "run", "--poses", "demo", "--profile", profile,
+             "--rate", str(rate_hz), "--baud", "115200", "--link", str(link), "--duration",
+             str(seconds + 8)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            for _ in range(200):
+                if link.exists():
+                    break
+                time.sleep(0.05)
+            fd = os.open(link, os.O_RDONLY | os.O_NOCTTY)
+
+            def drain() -> None:
+                try:
+                    while os.read(fd, 4096):
+                        pass
+                except OSError:
+                    pass
+
+            threading.Thread(target=drain, daemon=True).start()
+            time.sleep(5.0)
+            c0 = _cpu_s(proc.pid)
+            time.sleep(seconds)
+            c1 = _cpu_s(proc.pid)
+        finally:
+            proc.terminate()
+            proc.wait()
+    return (c1 - c0) / (seconds * rate_hz)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--profile", default="holux-m1000")
@@ -191,7 +238,16 @@ def main() -> None:
                     "is the code's speed, the median what a busy host gives")
     ap.add_argument("--whole-process", action="store_true",
                     help="time whole replay processes (20 epochs; 1 h at 10 Hz vs nmeasim)")
+    ap.add_argument("--daemon", action="store_true",
+                    help="CPU of whole 'virtualgps run' processes at 1 Hz and 10 Hz")
+    ap.add_argument("--seconds", type=float, default=30.0, help="--daemon: measured seconds")
     args = ap.parse_args()
+    if args.daemon:
+        for rate in (1.0, 10.0):
+            per = bench_daemon(rate, args.seconds, args.profile)
+            print(f"daemon at {rate:g} Hz ({args.profile}, 115200 baud, a client reading): "
+                  f"{per * 1e3:.2f} ms CPU per epoch, {100 * per * rate:.2f} % of a core")
+        return
     if args.whole_process:
         bench_whole_process(args.repeat, args.profile)
         return
