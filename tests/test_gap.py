@@ -229,6 +229,8 @@ def test_selfcheck_ranks_injected_effects_first(tmp_path):
     res = selfcheck.run(dg.Options(seeds=10, jobs=2, effects=("latency", "sbas")), trials=1,
                         out_dir=tmp_path)
     assert [t["ranked_first"] for t in res["trials"]] == ["latency", "sbas"]
+    assert [t["added_first"] for t in res["trials"]] == ["latency", "sbas"]
+    assert all(t["ranked"][0] == t["ranked_first"] for t in res["trials"])
     lat = res["trials"][0]
     assert lat["recovered"]["latency_s"] == pytest.approx(lat["params"]["latency_s"], abs=0.3)
     doc = json.loads((tmp_path / "selfcheck.json").read_text())

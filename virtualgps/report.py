@@ -218,13 +218,15 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
         "<h1>virtualgps gap --selfcheck</h1>",
         f"<p>{len(selfcheck.get('trials', []))} trials: injected effect ranked first in "
         f"{_fmt(100 * (selfcheck.get('share_ranked_first') or 0.0))} %, another effect in "
-        f"{_fmt(100 * (selfcheck.get('share_other_first') or 0.0))} %, none added in "
-        f"{_fmt(100 * (selfcheck.get('share_none') or 0.0))} %.</p>",
+        f"{_fmt(100 * (selfcheck.get('share_other_first') or 0.0))} %; added first in "
+        f"{_fmt(100 * (selfcheck.get('share_added_first') or 0.0))} %, another effect in "
+        f"{_fmt(100 * (selfcheck.get('share_other_added_first') or 0.0))} %.</p>",
         _figure("confusion", plot.fig_confusion(names, firsts, counts),
                 "confusion matrix: injected effect x effect ranked first") if names else "",
         "<h2>Confusion matrix</h2>", _table(rows, ["injected", *firsts]),
         "<h2>Trials</h2>",
         _table(selfcheck.get("trials", []), ["injected", "scenario", "params", "ranked_first",
-                                             "recovered", "gap_before", "gap_after"]),
+                                             "added_first", "recovered", "gap_before",
+                                             "gap_after"]),
     ]
     Path(path).write_text(_page("virtualgps gap self-check", body), encoding="utf-8")

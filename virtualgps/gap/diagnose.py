@@ -60,7 +60,7 @@ from virtualgps.gap.where import (
 from virtualgps.profiles import Profile
 from virtualgps.receiver import Georef
 
-MIN_REDUCTION_ABS = 0.02  # an effect is added when it lowers the held-out gap by more than
+MIN_REDUCTION_ABS = 0.01  # an effect is added when it lowers the held-out gap by more than
 MIN_REDUCTION_REL = 0.05  # this, and by more than this share of the gap before it
 FLAT_OBJECTIVE = 5e-3  # training gaps this close: the data cannot tell the grid points apart
 SCENE_REACH_M = 5000.0

@@ -141,9 +141,11 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     if name == "multipath":
         if not dop:
             return "needs dop_error (its range errors are solved with the others)"
-        if not has_mesh:
-            return "needs a scene with walls"
-        grid = _points(name, on, sigma_m=(2.0, 4.0, 8.0, 16.0), tau_s=(10.0, 30.0, 100.0))
+        # Without walls to measure the distance to, the antenna's surroundings (a vehicle's
+        # roof, the ground) reflect everywhere alike: the open-sky proximity is 1 and sigma_m
+        # takes the scale.
+        fixed = on if has_mesh else {**on, "open_sky_factor": 1.0}
+        grid = _points(name, fixed, sigma_m=(2.0, 4.0, 8.0, 16.0), tau_s=(10.0, 30.0, 100.0))
         return Candidate(name, grid, ("sigma_m", "tau_s"), default=4)
     if name == "foliage":
         if not has_mesh:
