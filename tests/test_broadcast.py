@@ -117,3 +117,32 @@ def test_bad_rinex_file_is_a_clear_error(tmp_path):
     with pytest.raises(Exception, match="bad.20n") as info:
         load_ephemeris_file(bad)
     assert type(info.value).__name__ == "InputFileError"
+
+
+def _as_rinex3(text: str) -> str:
+    """The GPS records of a RINEX 2 navigation file rewritten as RINEX 3.04 (Table A6/A8:
+    ``Gnn yyyy mm dd hh mm ss`` then the same D19.12 fields, orbit lines indented by 4)."""
+    lines = text.splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
+    out = [f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}RINEX VERSION / TYPE",
+           f"{'':60}END OF HEADER"]
+    body = lines[end + 1:]
+    for k in range(0, len(body) - 7, 8):
+        head = body[k]
+        yy, mo, dd, hh, mi = (int(head[i : i + 3]) for i in (2, 5, 8, 11, 14))
+        ss = int(float(head[17:22]))
+        out.append(f"G{int(head[:2]):02d} {2000 + yy:04d} {mo:02d} {dd:02d} {hh:02d} {mi:02d} "
+                   f"{ss:02d}{head[22:]}")
+        out += [" " + ln for ln in body[k + 1 : k + 8]]
+    return "\n".join(out) + "\n"
+
+
+def test_rinex3_navigation_file_gives_the_same_orbits(shared_data, tmp_path):
+    nav2 = shared_data / NAV
+    nav3 = tmp_path / "BRDC00IGS_R_20201350000_01D_GN.rnx"
+    nav3.write_text(_as_rinex3(nav2.read_text()))
+    a, b = load_ephemeris_file(nav2), load_ephemeris_file(nav3)
+    assert isinstance(b, broadcast.BroadcastEphemeris)
+    np.testing.assert_array_equal(a.prn, b.prn)
+    t = timegm((2020, 5, 14, 22, 0, 0)) + np.arange(0.0, 2700.0, 300.0)
+    np.testing.assert_allclose(b.sat_ecef_m(t), a.sat_ecef_m(t), atol=1e-6)

@@ -14,6 +14,7 @@ satellite has no position (NaN), as a receiver without a valid ephemeris has non
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -187,7 +188,9 @@ def read_rinex_nav(path: str | Path) -> BroadcastEphemeris:
         raise InputFileError(path, "reading RINEX navigation files needs georinex: pip install "
                              "'virtualgps[rinex]'") from None
     try:
-        nav = georinex.load(path, use="G")
+        with warnings.catch_warnings():  # xarray's notices about georinex's merges, not ours
+            warnings.simplefilter("ignore", FutureWarning)
+            nav = georinex.load(path, use="G")
     except Exception as exc:  # georinex raises many kinds on a bad file: name the file
         raise InputFileError(path, f"not a readable RINEX navigation file ({exc})") from None
     if nav is None or "sqrtA" not in getattr(nav, "data_vars", {}):
