@@ -75,6 +75,12 @@ def test_fetch_keeps_good_sets_only_and_runs_use_the_one_that_fits(server, tmp_p
     assert json.loads(fetched.stdout) == json.loads(given.stdout)
     old = _cli(cache, "sky", "--time", "2017-03-28T14:52:48Z", *lla)
     assert old.returncode == 0 and "TLE set fetched" not in old.stderr
+    # A replay dates itself by its log's first pose.
+    log = tmp_path / "drive.jsonl"
+    log.write_text("".join(json.dumps({"t": 1589495400.0 + i, "lat": 37.42, "lon": -122.08,
+                                       "alt": 0.0}) + "\n" for i in range(5)))
+    rep = _cli(cache, "replay", str(log), "--scene", "none", "--out", str(tmp_path / "d.nmea"))
+    assert rep.returncode == 0 and "TLE set fetched" in rep.stderr, rep.stderr
 
 
 def test_set_for_picks_the_nearest_fresh_set(tmp_path):

@@ -316,8 +316,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
-    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle)
     track = pose.read_pose_log(Path(args.poses), args.topic)
+    t_first = cfg.start_time_unix_s if cfg.start_time_unix_s is not None else track.t_unix_s[0]
+    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle, float(t_first))
     if georef is None:
         if track.frame != "geodetic":
             config.require_georef(None, "a geodetic pose log")
