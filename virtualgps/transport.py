@@ -82,7 +82,9 @@ _IDLE_ATTACHED_S = 1.0
 _MEASURE_EVERY_S = 0.25
 
 # Output pacing: write the line's bytes in slices of about this duration, at absolute wake times.
-_CHUNK_S = 0.01
+# 16 ms is how a USB serial adapter hands bytes over (FTDI's default latency timer, AN232B-04),
+# how most GPS mice reach a computer; finer slices cost wake-ups and tell a client nothing more.
+_CHUNK_S = 0.016
 _MAX_CHUNK_BYTES = 1024
 
 # Most unread bytes we let sit in the pty's kernel buffers. TIOCINQ on the slave counts only the
