@@ -198,15 +198,18 @@ def test_time_offset_recovered_on_a_moving_track():
     truth = PoseTrack(t, "geodetic", np.stack([lat, lon, np.zeros_like(t)], 1),
                       np.full((600, 3), np.nan))
     noise = rng.normal(0, 3.0 / 111e3, (2, 600))
-    # the real log's clock runs 4.7 s ahead of the truth's
-    real_lat = np.interp(t - 4.7, t, lat) + noise[0]
-    real_lon = np.interp(t - 4.7, t, lon) + noise[1]
+    # the real log's clock runs 7.7 s ahead of the truth's
+    real_lat = np.interp(t - 7.7, t, lat) + noise[0]
+    real_lon = np.interp(t - 7.7, t, lon) + noise[1]
     off, info = estimate_time_offset_s(t, real_lat, real_lon, truth)
-    assert info["applied"] and off == pytest.approx(4.7, abs=0.2)
-    # a lag of a second is reported (it could be the receiver's latency), not applied
-    off, info = estimate_time_offset_s(t, np.interp(t - 1.2, t, lat) + noise[0],
-                                       np.interp(t - 1.2, t, lon) + noise[1], truth)
-    assert off == 0.0 and not info["applied"] and info["best_s"] == pytest.approx(1.2, abs=0.2)
+    assert info["applied"] and off == pytest.approx(7.7, abs=0.2)
+    # lags of seconds are reported (they could be the receiver's latency or its navigation
+    # filter's lag), not applied
+    for lag in (1.2, 3.3):
+        off, info = estimate_time_offset_s(t, np.interp(t - lag, t, lat) + noise[0],
+                                           np.interp(t - lag, t, lon) + noise[1], truth)
+        assert off == 0.0 and not info["applied"]
+        assert info["best_s"] == pytest.approx(lag, abs=0.2)
 
 
 def test_real_logs_load(shared_data):

@@ -167,10 +167,12 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
         grid = tuple({"sky": {"elevation_mask_deg": v}} for v in (cur,) + vals)
         return Candidate(name, grid, ("elevation_mask_deg",))
     if name == "latency":
-        grid = _points(name, on, latency_s=(0.1, 0.25, 0.5, 1.0, 2.0))
+        grid = _points(name, on, latency_s=(0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0))
         return Candidate(name, grid, ("latency_s",), default=0)
     if name == "nav_filter":
-        grid = _points(name, on, tau_s=(0.5, 1.0, 2.0, 4.0, 8.0, 16.0))
+        # 0.5 s steps where receivers' filters lie (and fine latencies): with coarser grids a
+        # pure delay fits a filter's lag better than the filter itself does, and back
+        grid = _points(name, on, tau_s=(0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0))
         return Candidate(name, grid, ("tau_s",), default=1)
     if name == "static_hold":
         grid = _points(name, on, threshold_mps=(0.2, 0.4, 0.8, 1.5))

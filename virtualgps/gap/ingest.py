@@ -31,7 +31,9 @@ TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs be
 MOVING_PATH_M = 30.0  # a truth whose path is longer than this "moves": its clock offset is sought
 OFFSET_MAX_S = 30.0
 OFFSET_MIN_GAIN = 0.9  # apply an offset only if it lowers the median distance by 10 % or more
-LATENCY_LIKE_S = 2.5  # offsets up to this are reported, not applied: they look like latency
+# Offsets up to this are reported, not applied: a receiver's own lag looks the same (an output
+# latency of up to ~2 s, a navigation filter's lag of its time constant, several seconds).
+LATENCY_LIKE_S = 5.0
 KNOWN = {"GGA", "RMC", "GSA", "GSV", "VTG", "GLL", "ZDA", "GNS", "GST", "TXT"}
 
 
