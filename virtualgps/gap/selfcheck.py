@@ -95,22 +95,22 @@ INJECTIONS: dict[str, Injection] = {
     "correlated_error": Injection(
         "holux-m1000", {"correlated_error": {"enabled": False}},
         lambda r, _: {"correlated_error": {"enabled": True, "domain": "range",
-                                        "tau_s": _u(r, 80, 400, 0), "sigma_m": _u(r, 2.5, 5)}},
+                                           "tau_s": _u(r, 80, 400, 0), "sigma_m": _u(r, 2.5, 5)}},
         ("static_open", "moving_open", "static_built")),
     "cold_start": Injection(
         "holux-m1000", {"cold_start": {"enabled": False}},
         lambda r, _: {"cold_start": {"enabled": True, "power_on": "cold",
-                                  "ttff_cold_s": _u(r, 25, 60, 0)}},
+                                     "ttff_cold_s": _u(r, 25, 60, 0)}},
         ("static_open", "moving_open", "static_built")),
     "cn0_tracking": Injection(
         "holux-m1000", {"cn0_tracking": {"enabled": False}},
         lambda r, _: {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": _u(r, 35, 41, 0),
-                                    "horizon_loss_db": _u(r, 16, 24, 0)}},
+                                       "horizon_loss_db": _u(r, 16, 24, 0)}},
         ("static_open", "moving_open", "static_built")),
     "nlos": Injection(
         "holux-m1000", {"nlos": {"enabled": False}},
         lambda r, _: {"nlos": {"enabled": True, "scattering": True, "max_dist_m": 50.0,
-                            "reflection_loss_db": _u(r, 4, 8, 0)}},
+                               "reflection_loss_db": _u(r, 4, 8, 0)}},
         ("moving_built",)),
     "multipath": Injection(
         "ideal", {"dop_error": {"enabled": True}},
