@@ -355,6 +355,24 @@ def test_effects_keep_batch_equal_to_epoch_by_epoch():
         assert one.alt_msl_m[0] == pytest.approx(batch.alt_msl_m[i], abs=1e-9)
 
 
+@pytest.mark.parametrize("extra", [
+    {"correlated_error": {"enabled": True, "domain": "range"}},
+    {"multipath": {"enabled": True, "open_sky_factor": 1.0}},
+])
+def test_switching_one_effect_leaves_the_others_random_numbers_alone(extra):
+    """Common random numbers: a profile with one more effect, run with the same seed, draws
+    every other model's numbers as before (the gap tool's fits compare such profiles; one
+    shared row of uniforms reshuffled all of them when a model's columns joined it)."""
+    base = {"dop_error": {"enabled": True}, "cn0_tracking": {"enabled": True}}
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    ref, _ = _run(load_profile("ideal", base), sky, n_t=60, seed=4)
+    more, _ = _run(load_profile("ideal", {**base, **extra}), sky, n_t=60, seed=4)
+    assert np.isfinite(ref.cn0_dbhz).sum() > 100
+    np.testing.assert_array_equal(more.cn0_dbhz, ref.cn0_dbhz)  # the same fades
+    np.testing.assert_array_equal(more.used, ref.used)
+    assert not np.array_equal(more.lat_deg, ref.lat_deg)  # and the effect itself acts
+
+
 def _walk(prof, vel_east_mps, n=30, seed=0):
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
     rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
@@ -522,7 +540,8 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     sky = _mp_sky(wall_dist_m, blocked)
     used = np.ones((1, 6), bool)
     layout_on, layout_off = draw_layout(on, 6), draw_layout(off, 6)
-    # The effect's uniforms come after every other block: the others keep their columns.
+    # The effect's uniforms come after every other block (its own stream: see
+    # test_switching_one_effect_leaves_the_others_random_numbers_alone).
     assert {k: v for k, v in layout_on.items() if k not in ("multipath", "total")} == \
         {k: v for k, v in layout_off.items() if k != "total"}
     assert layout_on["multipath"] == layout_off["total"]

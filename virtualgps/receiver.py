@@ -89,6 +89,8 @@ class ReceiverState:
         flags, epochs spent at or above the acquisition threshold; None before the first epoch
     mp_m : (n_sat,) float, the ``multipath`` Gauss-Markov processes (unit variance; scaled by
         each epoch's sigma) after the last epoch, None before the first
+    streams : {model: Generator}, the error models' own random streams (see
+        :func:`model_streams`), made from the run's generator at its first epoch
     """
 
     n_epochs: int = 0
@@ -104,6 +106,7 @@ class ReceiverState:
     tracked: np.ndarray | None = field(default=None, compare=False)
     acq_run: np.ndarray | None = field(default=None, compare=False)
     mp_m: np.ndarray | None = field(default=None, compare=False)
+    streams: dict | None = field(default=None, compare=False)
 
 
 START_KINDS = ("hot", "warm", "cold")
@@ -574,11 +577,51 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
     if profile.cn0_tracking.enabled:
         cols["fade"] = total
         total += even
-    if profile.multipath.enabled:  # last: the other effects keep their columns
+    if profile.multipath.enabled:
         cols["multipath"] = total
         total += even
     cols["total"] = total
     return cols
+
+
+# Each error model draws from a stream of its own, spawned from the run's generator by a fixed
+# key, so switching one model on or off leaves every other model's numbers as they were:
+# profiles that differ in one effect, run with the same seed, differ by that effect alone
+# (common random numbers; the gap tool's fits compare exactly such profiles). One row of the
+# run's own generator would reshuffle every column when a model's width joins the row.
+_STREAM_KEYS = {"white": 1, "gm": 2, "fade": 3, "multipath": 4}
+_STREAM_DOMAIN = 0x76677073  # "vgps": keeps these spawn keys apart from a caller's own
+
+
+def model_streams(rng: np.random.Generator) -> dict[str, np.random.Generator]:
+    """The error models' random streams for a run whose generator is ``rng``.
+
+    They are children of ``rng``'s seed sequence (NumPy's ``SeedSequence`` spawning, by fixed
+    keys: independent of the parent's stream and of one another, and not consuming it); a
+    generator without a seed sequence seeds them from one draw of its own.
+
+    Returns
+    -------
+    streams : {model name: numpy.random.Generator}
+    """
+    ss = getattr(rng.bit_generator, "seed_seq", None)
+    if not isinstance(ss, np.random.SeedSequence):
+        ss = np.random.SeedSequence(int(rng.integers(2**63)))
+    key = tuple(ss.spawn_key) + (_STREAM_DOMAIN,)
+    return {name: np.random.default_rng(np.random.SeedSequence(ss.entropy, spawn_key=key + (k,)))
+            for name, k in _STREAM_KEYS.items()}
+
+
+def draw_uniforms(rng: np.random.Generator, streams: dict[str, np.random.Generator],
+                  layout: dict[str, int], n_t: int) -> np.ndarray:
+    """(n_t, layout["total"]) uniforms on [0, 1): the paper's two columns from ``rng``, each
+    model's columns from its own stream (one row per epoch from each, so a batch draws what
+    the same epochs drawn one at a time do)."""
+    starts = sorted((c, name) for name, c in layout.items() if name != "total")
+    ends = [c for c, _ in starts[1:]] + [layout["total"]]
+    blocks = [(rng if name == "usarsim" else streams[name]).random((n_t, end - c))
+              for (c, name), end in zip(starts, ends, strict=True)]
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=1)
 
 
 @dataclass(frozen=True)
@@ -971,8 +1014,8 @@ def simulate(
     vel_enu_mps : (n_t, 3) float, metres per second, ENU (NaN where unknown: speed 0)
     pose_valid : (n_t,) bool, False where no recent pose exists (no-fix epochs)
     state : the receiver state after the previous epoch
-    rng : the random generator (consumed: one row of uniforms per epoch, its width set by the
-        profile: 2 for the paper's model; see :func:`draw_layout`)
+    rng : the random generator (consumed: two uniforms per epoch, the paper's; every other
+        model draws from its own stream, :func:`model_streams`, kept in the state)
     sky : the sky of these epochs and positions, from :func:`compute_sky` with this receiver
         (None: computed here). An ensemble of seeds over one run shares it: the sky holds
         everything that does not depend on the random numbers (satellites, rays, reflections).
@@ -990,10 +1033,11 @@ def simulate(
     if sky is None:
         sky = compute_sky(rx, t, ant)
     layout = draw_layout(prof, len(rx.ephemeris.prn))
-    # All random numbers of an epoch come from one row of uniforms, so batch and
-    # epoch-by-epoch runs consume the generator identically (the layout depends on the profile
-    # only; the paper's model uses the first two).
-    u = rng.random((n_t, layout["total"]))
+    # All random numbers of an epoch come as one row per stream, so batch and epoch-by-epoch
+    # runs consume the generators identically (the paper's model uses the first two columns,
+    # from ``rng`` itself).
+    streams = state.streams if state.streams is not None else model_streams(rng)
+    u = draw_uniforms(rng, streams, layout, n_t)
     dt_s = t - np.concatenate(([state.last_t_unix_s], t[:-1]))  # (np.diff: slow on one epoch)
     dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
     # Steps to the microsecond: epochs k / rate far from 1970 differ from 1 / rate in their last
@@ -1088,6 +1132,7 @@ def simulate(
         last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
         gm_m=err.gm_m,
         mp_m=err.mp_m,
+        streams=streams,
         last_alt_hae_m=last_alt,
         **track_state,
         **out_state,
