@@ -227,6 +227,13 @@ class _EpochQueue:
         self.epochs.append(_Epoch(data, now_s))
         self.queued_bytes += len(data)
 
+    def put_back(self, epochs: list[_Epoch]) -> None:
+        """Queue whole epochs again ahead of the rest, in their order (their bytes were
+        discarded from the kernel unread)."""
+        for e in reversed(epochs):
+            self.epochs.appendleft(_Epoch(e.data, e.t_enqueued_s))
+            self.queued_bytes += len(e.data)
+
     def trim(self, now_s: float, kernel_bytes: int) -> None:
         """Drop the oldest unstarted epochs while the backlog is too large or too old.
 
@@ -435,10 +442,15 @@ class PtyDevice(OutputDevice):
         self._kernel_dropped_bytes = 0
         self._kernel_unread = 0
         self._measured_s = -math.inf  # when TIOCINQ was last read (time.monotonic)
-        # Bytes written since the last flush, with when: (t_monotonic_s, cumulative end offset).
-        # With TIOCINQ this tells the age of the oldest byte the client has not read yet.
+        # Bytes written since the last flush, with when their epoch was queued: (t_monotonic_s,
+        # cumulative end offset). With TIOCINQ this tells the age of the oldest byte the client
+        # has not read yet (an epoch put back after a flush keeps its age).
         self._sent_total = 0
         self._sent_log: deque[tuple[float, int]] = deque()
+        # Epochs whose first byte was written since the last flush: (start offset, epoch), so a
+        # flush of stale output can put back the recent epochs it discarded with it.
+        # (At most _KERNEL_CAP_BYTES are unread, a few dozen epochs: older entries are moot.)
+        self._in_kernel: deque[tuple[int, _Epoch]] = deque(maxlen=256)
         self._peer_error_logged = False
 
         master_fd, slave_fd = os.openpty()
@@ -696,14 +708,23 @@ class PtyDevice(OutputDevice):
             finally:
                 os.close(fd)
         self._sent_log.clear()
+        self._in_kernel.clear()
         self._sent_total = 0
         self._kernel_unread = 0
+
+    def _unread_recent(self, now_s: float, unread: int) -> list[_Epoch]:
+        """The epochs written whole into the kernel's unread bytes that are not yet stale."""
+        first_unread = self._sent_total - unread
+        return [e for start, e in self._in_kernel
+                if start >= first_unread and now_s - e.t_enqueued_s <= self.max_backlog_s]
 
     def _unread_age_s(self, now_s: float, unread: int) -> float:
         """Return how long ago the oldest unread byte was written (0 if all was read)."""
         first_unread = self._sent_total - unread
         while self._sent_log and self._sent_log[0][1] <= first_unread:
             self._sent_log.popleft()
+        while self._in_kernel and self._in_kernel[0][0] < first_unread:
+            self._in_kernel.popleft()  # (read, or begun: never sent again)
         if unread <= 0 or not self._sent_log:
             return 0.0
         return now_s - self._sent_log[0][0]
@@ -742,11 +763,19 @@ class PtyDevice(OutputDevice):
                 or self._unread_age_s(now_s, unread) > self.max_backlog_s
             ):
                 # The client holds the port open but stopped reading: what it would read next
-                # is stale. Discard it and the rest of its epoch; fresh epochs follow.
+                # is stale. Discard it and the rest of its epoch, then queue again the recent
+                # epochs the flush took with it (the newest may be all a client gets for a
+                # while: nothing else may follow soon).
+                recent = self._unread_recent(now_s, unread)
                 self._flush_kernel()
+                self._kernel_dropped_bytes -= sum(e.offset for e in recent)  # (back, not lost)
                 unread = 0
                 with self._lock:
+                    if recent and self._queue and self._queue.epochs[0] is recent[-1]:
+                        self._queue.epochs.popleft()  # (started: it goes back whole)
+                        self._queue.queued_bytes -= len(recent[-1].data) - recent[-1].offset
                     self._queue.drop_started()
+                    self._queue.put_back(recent)
         in_kernel = unread if unread is not None else 0
         with self._lock:
             self._kernel_unread = in_kernel
@@ -763,6 +792,8 @@ class PtyDevice(OutputDevice):
             room = _KERNEL_CAP_BYTES - in_kernel
             if room <= 0:
                 return _CHUNK_S, next_send_s  # the client is not reading; look again soon
+            head = self._queue.epochs[0]
+            start = self._sent_total if head.offset == 0 else -1
             chunk = self._queue.peek(min(self._chunk_bytes, room))
             try:
                 n_sent = os.write(self._master, chunk)
@@ -776,8 +807,10 @@ class PtyDevice(OutputDevice):
             self._queue.advance(n_sent)
             self.written_bytes += n_sent
             self._kernel_unread = in_kernel + n_sent
+        if start >= 0:
+            self._in_kernel.append((start, head))
         self._sent_total += n_sent
-        self._sent_log.append((now_s, self._sent_total))
+        self._sent_log.append((head.t_enqueued_s, self._sent_total))  # (the bytes' age)
         # Absolute schedule: the next slice is due when this one has left the "line".
         next_send_s += n_sent / self._bytes_per_s
         return max(0.0, next_send_s - time.monotonic()), next_send_s
