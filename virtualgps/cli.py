@@ -209,7 +209,7 @@ def _status_text(fixes, stats, device) -> str:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from virtualgps import config, daemon, nmea, pose, transport
+    from virtualgps import config, daemon, nmea, pose, posesource, transport
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
@@ -254,7 +254,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         provider = daemon.LoopProvider(lap, t0, prof.pose_timeout_s)
     elif spec.startswith(("udp://", "tcp://")) or spec == "-":
         provider = daemon.LiveProvider(
-            transport.open_pose_source(spec), georef, clock, prof.pose_timeout_s
+            posesource.open_pose_source(spec), georef, clock, prof.pose_timeout_s
         )
     else:
         from virtualgps.replay import track_in_scene
