@@ -11,7 +11,7 @@ a segment, so a pass counts once however many epochs it lasts.
 The scalar gap score (README, "The gap score"): the mean over the score metrics assessed on a
 unit of data (a run, or a time block of a single run) of a per-metric distance between the real
 statistic and the ensemble median: ``|ln((real + c) / (sim + c))|`` for scale statistics
-(errors, times, counts, HDOP), ``|real - sim| / scale`` for shares and levels, each capped at
+(horizontal errors and the vertical scatter, times, counts, HDOP), ``|real - sim| / scale`` for shares and levels, each capped at
 :data:`D_CAP`; lower is better, 0 is no detectable disagreement.
 """
 
@@ -44,6 +44,7 @@ MIN_AUTOCORR_EPOCHS = 120  # a 1/e time needs a record several times longer than
 SCORE: dict[str, tuple[str, float]] = {
     "cep50_m": ("log", 0.5),
     "r95_m": ("log", 0.5),
+    "up_p68_m": ("log", 0.5),
     "autocorr_s": ("log", 2.0),
     "sats_used_mean": ("log", 0.5),
     "used_changes_per_min": ("log", 0.5),
@@ -414,6 +415,14 @@ def segment_stats(
             put("cep50_m", row_quantile(eh_r, 0.5), row_quantile(eh_s, 0.5))
         if wanted("r95_m"):
             put("r95_m", row_quantile(eh_r, 0.95), row_quantile(eh_s, 0.95))
+        if wanted("up_p68_m"):
+            # The vertical scatter about its own median: a receiver's vertical error (DOP-driven
+            # in most; none in the paper's model, smoothed in MTK's) without the truth's height
+            # offset (an antenna height, a geoid model), which no effect of a receiver explains.
+            def up_scatter(e: np.ndarray) -> np.ndarray:
+                up = e[:, epochs, 2]
+                return row_quantile(np.abs(up - row_quantile(up, 0.5)[:, None]), 0.68)
+            put("up_p68_m", up_scatter(err_real), up_scatter(err_sim))
         if view.reference == "truth" and wanted("bias_m"):
             def bias(e: np.ndarray) -> np.ndarray:
                 m = np.stack([_rowmean(e[:, :, j]) for j in (0, 1)], axis=-1)
