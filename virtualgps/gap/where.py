@@ -11,8 +11,9 @@ a segment, so a pass counts once however many epochs it lasts.
 The scalar gap score (README, "The gap score"): the mean over the score metrics assessed on a
 unit of data (a run, or a time block of a single run) of a per-metric distance between the real
 statistic and the ensemble median: ``|ln((real + c) / (sim + c))|`` for scale statistics
-(horizontal errors and the vertical scatter, times, counts, HDOP), ``|real - sim| / scale`` for shares and levels, each capped at
-:data:`D_CAP`; lower is better, 0 is no detectable disagreement.
+(horizontal errors and the vertical scatter, times, counts, HDOP), ``|real - sim| / scale``
+for shares and levels, each capped at :data:`D_CAP`; lower is better, 0 is no detectable
+disagreement.
 """
 
 from __future__ import annotations
