@@ -45,7 +45,7 @@ TLE_2020 = BUNDLED_EPHEMERIS_DIR / "gps-ops-2020-05-14T22Z.tle"
 PRN_TABLE = BUNDLED_EPHEMERIS_DIR / "gps-ops-NORAD-PRN.t"
 
 # Tolerances, in units.
-SKYFIELD_TOL_DEG = 0.05  # measured 0.003 deg: UT1-UTC (<0.9 s) and frame-chain differences
+SKYFIELD_TOL_DEG = 0.01  # measured 0.0026 deg: UT1-UTC (<0.9 s) and frame-chain differences
 TABLE_60S_TOL_M = 0.01  # measured 4 mm (Hermite on SGP4 positions + their derivatives)
 TABLE_300S_TOL_M = 1.0  # measured 0.4 m
 MM_M = 0.001
