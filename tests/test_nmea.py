@@ -795,3 +795,29 @@ def test_read_fixes_of_a_magdeburg_phone_log_agrees_with_pynmea2(shared_data):
             assert minutes_err(log.lon_deg[k], m.longitude) < 1e-6
             assert log.alt_msl_m[k] == m.altitude
     assert utc(log.t_unix_s[0]).date() == date(2017, 3, 26)
+
+
+def test_simulated_cold_start_prints_mtks_no_fix_fields_byte_for_byte(shared_data):
+    """The receiver's own epochs before its first fix (a real geoid separation in the fixes)
+    print what tr737A+.log:8 prints after its time: placeholders, the geoid's included."""
+    import io
+
+    from virtualgps import pose
+    from virtualgps.ephemeris import default_tle_path, load_tle
+    from virtualgps.profiles import load_profile
+    from virtualgps.receiver import Georef, Receiver
+    from virtualgps.replay import epoch_grid, run_replay
+
+    prof = load_profile("holux-m1000", {"cold_start": {"power_on": "cold"}})
+    eph = load_tle(default_tle_path())
+    rx = Receiver(prof, eph, None, Georef(52.14, 11.64, 100.0))
+    t = np.floor(eph.epoch_center_unix_s) + np.arange(10.0)
+    track = pose.PoseTrack(t, "enu", np.zeros((10, 3)), np.full((10, 3), np.nan))
+    buf = io.BytesIO()
+    run_replay(rx, track, epoch_grid(t, 1.0, None), NmeaFormat.from_dict(prof.nmea), buf, 0)
+    gga = [ln for ln in buf.getvalue().split(b"\r\n") if ln.startswith(b"$GPGGA")]
+    assert len(gga) == 10
+    want = b"$GPGGA,071733.929,8960.0000,N,00000.0000,E,0,0,,137.0,M,13.0,M,,*40"
+    assert want + b"\r\n" in log_lines(shared_data / "gpsd-mtk" / "tr737A+.log")
+    for line in gga:  # every field after the time (the checksum covers the time)
+        assert line.split(b"*")[0].split(b",")[2:] == want.split(b"*")[0].split(b",")[2:]

@@ -480,7 +480,10 @@ def _render_block(
 
     ad, dd_, sd, cd = fmt.alt_decimals, fmt.dop_decimals, fmt.speed_decimals, fmt.course_decimals
     alt = fx(fixes.alt_msl_m[sl], 6, ad, none, MTK_PLACEHOLDER_ALT_MSL_M)
-    geoid = fx(fixes.geoid_sep_m[sl], 4, ad, none, MTK_PLACEHOLDER_GEOID_SEP_M)
+    # No fix, no geoid separation: MTK prints its placeholder (13.0, tr737A+.log:8,
+    # mtk-3301.log), others an empty field (mt3339-static, telit-he910.log).
+    geoid_m = np.where(no_fix, np.nan, np.asarray(fixes.geoid_sep_m[sl], dtype=np.float64))
+    geoid = fx(geoid_m, 4, ad, none, MTK_PLACEHOLDER_GEOID_SEP_M)
     dops = [
         _clip_finite(np.asarray(a[sl], dtype=np.float64), 0.0, 99.0)
         for a in (fixes.pdop, fixes.hdop, fixes.vdop)
@@ -735,7 +738,8 @@ def _render_scalar(
     ph = mtk  # placeholders for NaN (MTK style)
     ad, dd_, sd, cd = fmt.alt_decimals, fmt.dop_decimals, fmt.speed_decimals, fmt.course_decimals
     alt = _opt_s(float(fixes.alt_msl_m[i]), 6, ad, MTK_PLACEHOLDER_ALT_MSL_M if ph else None)
-    geoid = _opt_s(float(fixes.geoid_sep_m[i]), 4, ad, MTK_PLACEHOLDER_GEOID_SEP_M if ph else None)
+    geoid_m = math.nan if no_fix else float(fixes.geoid_sep_m[i])  # (see _render_block)
+    geoid = _opt_s(geoid_m, 4, ad, MTK_PLACEHOLDER_GEOID_SEP_M if ph else None)
 
     def dop(x: float, empty: bool) -> str:
         if empty or not math.isfinite(x):
