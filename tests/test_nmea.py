@@ -821,3 +821,8 @@ def test_simulated_cold_start_prints_mtks_no_fix_fields_byte_for_byte(shared_dat
     assert want + b"\r\n" in log_lines(shared_data / "gpsd-mtk" / "tr737A+.log")
     for line in gga:  # every field after the time (the checksum covers the time)
         assert line.split(b"*")[0].split(b",")[2:] == want.split(b"*")[0].split(b",")[2:]
+    rmc = [ln.split(b"*")[0].split(b",") for ln in buf.getvalue().split(b"\r\n")
+           if ln.startswith(b"$GPRMC")]
+    want_rmc = b"$GPRMC,071733.929,V,8960.0000,N,00000.0000,E,0.00,0.00,111111,,,N".split(b",")
+    for f in rmc:  # all but the time and the date
+        assert f[2:9] + f[10:] == want_rmc[2:9] + want_rmc[10:]
