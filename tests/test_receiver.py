@@ -165,6 +165,22 @@ def test_mask_blocking_and_fix_rules():
     assert fixes.alt_msl_m[0] + fixes.geoid_sep_m[0] == pytest.approx(GEOREF.alt0_hae_m, abs=1e-6)
 
 
+def test_satellites_below_the_mask_are_ray_cast_too():
+    """A receiver tracks satellites below its mask (GSV lists them with an SNR); one behind a
+    building is not received, whatever its elevation."""
+    prof = load_profile("ideal", {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": 45.0,
+                                                   "horizon_loss_db": 5.0}})
+    #                  2 deg behind the wall (az 100-140), 2 deg clear, and three high ones
+    sky = FixedSky([120, 200, 10, 250, 300], [2.0, 2.0, 60, 40, 45])
+    walled, _ = _run(prof, sky, n_t=30, scene=WallOnAzimuth(100, 140))
+    assert prof.sky.elevation_mask_deg > 2.0
+    assert np.isnan(walled.cn0_dbhz[:, 0]).all()  # behind the wall: never an SNR
+    assert np.isfinite(walled.cn0_dbhz[:, 1]).any()  # the clear one at 2 deg is tracked
+    assert not walled.used[:, :2].any()  # (neither is used: below the mask)
+    open_sky, _ = _run(prof, sky, n_t=30)
+    assert np.isfinite(open_sky.cn0_dbhz[:, 0]).any()  # without the wall it is tracked
+
+
 def test_select_used_keeps_the_highest_twelve():
     el = np.arange(14, dtype=float) * 5 + 10
     used = select_used(np.ones(14, bool), el, 12)

@@ -238,7 +238,7 @@ class Sky:
     los_enu : (..., n_t, n_sat, 3) unit vectors antenna -> satellite, antenna ENU frame
     above_mask : (..., n_t, n_sat) bool, elevation >= the profile's mask
     blocked : (..., n_t, n_sat) bool, line of sight hits an occluder or a blocking bin of the
-        profile's sky mask (False below the mask)
+        profile's sky mask (False below the horizon)
     nlos : (..., n_t, n_sat) bool, blocked but received off a facade (``nlos`` effect)
     excess_m : (..., n_t, n_sat) float, metres, the reflected path's extra length (0 if direct)
     nlos_loss_db : (..., n_t, n_sat) float, dB, the loss of that path: the reflection loss, plus
@@ -457,12 +457,15 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     az, el, _ = geodesy.enu_to_azel(los_enu)
     with np.errstate(invalid="ignore"):
         above = el >= rx.profile.sky.elevation_mask_deg  # NaN (no ephemeris) -> False
+        # Every satellite above the horizon is ray-cast, not only those above the mask: a
+        # receiver tracks (and GSV lists with an SNR) satellites below its mask for use.
+        risen = el >= 0.0
     blocked = np.zeros_like(above)
     foliage_db = np.zeros(above.shape)
-    if rx.scene is not None and above.any():
+    if rx.scene is not None and risen.any():
         # Rays are cast in the scene's frame: the ENU frame of the georeference point, whose
         # axes differ from the antenna's local ENU by the Earth's curvature (~0.009 deg per km).
-        idx = np.nonzero(above)
+        idx = np.nonzero(risen)
         dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = ant[idx[:-1]]  # (the antenna of each ray's epoch)
         foliage_blocks = rx.profile.sky.foliage == "block" and not rx.profile.foliage.enabled
@@ -475,7 +478,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     mask = rx.profile.sky_mask
     if mask.enabled:  # obstacles the scene lacks: attenuate like foliage; a bin >= block_db
         # blocks the direct path (a reflection off a facade may still arrive: nlos)
-        mask_db = np.where(above, skymask.attenuation_db(mask, az, el, ant), 0.0)
+        mask_db = np.where(risen, skymask.attenuation_db(mask, az, el, ant), 0.0)
         walled = mask_db >= mask.block_db
         blocked |= walled
         foliage_db = foliage_db + np.where(walled, 0.0, mask_db)
