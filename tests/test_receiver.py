@@ -482,6 +482,24 @@ def test_reported_sigma_matches_the_error_scatter_and_reaches_gst():
     assert np.isnan(us.sigma_enu_m[:, 2]).all()
 
 
+@pytest.mark.parametrize("extra", [
+    {"correlated_error": {"enabled": True, "domain": "range", "tau_s": 3.0, "sigma_m": 3.5}},
+    {"multipath": {"enabled": True, "open_sky_factor": 1.0, "sigma_m": 8.0, "tau_s": 3.0}},
+])
+def test_reported_sigma_is_that_of_the_errors_made(extra):
+    """Weights from the textbook UERE, errors carrying more (correlated range errors,
+    multipath): GST's sigma must still be the errors' (issue #11: actual/reported 1.5-1.7
+    before). Short correlation times, so 20,000 epochs hold thousands of samples."""
+    prof = load_profile("ideal", {"dop_error": {"enabled": True}, **extra})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    fixes, _ = _run(prof, sky, n_t=20_000, seed=5)
+    err = _enu_errors(fixes)
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    np.testing.assert_allclose(rms / fixes.sigma_enu_m[0], 1.0, atol=0.06)
+    plain = load_profile("ideal", {"dop_error": {"enabled": True}})
+    assert (fixes.sigma_enu_m[0] > _run(plain, sky, n_t=1)[0].sigma_enu_m[0]).all()
+
+
 def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges():
     from virtualgps.receiver import restart
 
@@ -578,7 +596,15 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
         np.testing.assert_array_equal(e_on.enu_m, e_off.enu_m)
     else:
         assert np.abs(e_on.enu_m).max() > 0.01
-    np.testing.assert_array_equal(e_on.sigma_enu_m, e_off.sigma_enu_m)  # GST does not know it
+    # The reported sigma is that of the errors made: the multipath variance joins the ranges'
+    # (the sandwich covariance of the WLS weighted by the UERE alone).
+    r = sigma_i**2 + np.where(blocked, 0.0, (4.0 * np.exp(-sky.el_deg / 15.0) * prox) ** 2)
+    _, want_sigma = errors.wls_fix(sky.los_enu, used, sigma_i, eps, error_sigma_m=np.sqrt(r))
+    np.testing.assert_allclose(e_on.sigma_enu_m, want_sigma, rtol=1e-12)
+    if wall_dist_m >= 30.0:
+        np.testing.assert_allclose(e_on.sigma_enu_m, e_off.sigma_enu_m, rtol=1e-12)
+    else:
+        assert (e_on.sigma_enu_m > e_off.sigma_enu_m).all()
 
 
 def _mp_run(prof, sky, n, chunk, seed):

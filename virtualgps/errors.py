@@ -218,14 +218,17 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
 
 def wls_fix(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, range_err_m: np.ndarray,
-    n_states: int = 4, held_height: bool = False,
+    n_states: int = 4, held_height: bool = False, error_sigma_m: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position error of a weighted least-squares fix made from erroneous ranges, and its sigma.
 
     Pseudorange residual model rho_err = -u . dx + c dt + eps; the WLS estimate
     dx = Q G^T W eps with Q = (G^T W G)^-1, G rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D,
     height held), W = diag(1 / sigma^2) over the used satellites; the estimate's covariance is
-    Q (Misra & Enge, section 6.1). One normal matrix and one inverse serve both.
+    Q (Misra & Enge, section 6.1). One normal matrix and one inverse serve both. Where the range
+    errors' own standard deviations differ from the weights' (``error_sigma_m``: a receiver
+    weighting by its textbook budget while its errors carry more), the covariance is the
+    sandwich Q G^T W R W G Q, R = diag(error_sigma^2).
 
     Parameters
     ----------
@@ -237,7 +240,10 @@ def wls_fix(
     held_height : with n_states 4, the held height of a 2D fix counts as one more measurement,
         a row [0, 0, 1, 0] weighted as the mean of the used ranges' weights (as in
         :func:`virtualgps.receiver.dop`; its error is 0 here): 3 satellites then determine the
-        states, and the sigmas are a 2D fix's own (what GST reports)
+        states, and the sigmas are a 2D fix's own (what GST reports); with ``error_sigma_m``
+        its variance is the used ranges' mean error-to-weight variance ratio over its weight
+    error_sigma_m : (..., n_sat) float, metres, the range errors' standard deviations for the
+        covariance (None: ``sigma_m``)
 
     Returns
     -------
@@ -249,15 +255,18 @@ def wls_fix(
     u = -np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num: slow on tiny arrays)
     ones = np.ones(los_enu.shape[:-1] + (1,))
     g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
-    gw_t = np.swapaxes(g * np.where(used, 1.0 / np.square(sigma_m), 0.0)[..., None], -1, -2)
+    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)
+    gw_t = np.swapaxes(g * w[..., None], -1, -2)
     # matmul, not einsum: the same sums, ten times faster over thousands of epochs
     normal = gw_t @ g
     rhs = gw_t @ np.where(used, range_err_m, 0.0)[..., None]
     n_used = used.sum(axis=-1)
     ok = n_used >= n_states
-    if held_height and n_states == 4:
+    held = held_height and n_states == 4
+    if held:
         with np.errstate(invalid="ignore", divide="ignore"):
-            normal[..., 2, 2] += np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
+            w_held = np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
+        normal[..., 2, 2] += w_held
         ok = n_used >= 3
     eye = np.eye(n_states)
     safe = np.where(ok[..., None, None], normal, eye)
@@ -273,7 +282,15 @@ def wls_fix(
     err = np.zeros(los_enu.shape[:-2] + (3,))
     err[..., :2] = sol[..., :2]
     sigma = np.full(los_enu.shape[:-2] + (3,), np.nan)
-    diag = np.sqrt(np.abs(np.diagonal(q, axis1=-2, axis2=-1)))
+    cov = q
+    if error_sigma_m is not None:
+        wr = w * np.where(used, np.square(error_sigma_m), 0.0)  # r_i / sigma_i^2
+        mid = np.swapaxes(g * (w * wr)[..., None], -1, -2) @ g  # G^T W R W G
+        if held:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mid[..., 2, 2] += w_held * wr.sum(axis=-1) / n_used
+        cov = q @ mid @ q
+    diag = np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))
     sigma[..., :2] = diag[..., :2]
     if n_states == 4:
         err[..., 2] = sol[..., 2]

@@ -724,8 +724,12 @@ def position_errors(
     if sigma_i is not None:  # dop_error
         c = layout["white"]
         z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
+        # The errors' own variance where it differs from the weights' (the receiver weights
+        # by its textbook budget): the reported sigma must be that of the errors it makes.
+        err_var = None
         if ce.enabled and ce.domain == "range":
             eps = corr_range + prof.dop_error.rx_noise_m * z
+            err_var = (ce.sigma_m * el_shape) ** 2 + prof.dop_error.rx_noise_m**2
         else:
             eps = sigma_i * z
         eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
@@ -742,7 +746,11 @@ def position_errors(
                                                 mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
             # Line of sight only: a blocked satellite arrives, if at all, off a wall (nlos).
             eps = eps + np.where(sky.blocked, 0.0, sigma_mp * x)
-        e3, sigma_enu = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4)
+            err_var = (sigma_i**2 if err_var is None else err_var) \
+                + np.where(sky.blocked, 0.0, sigma_mp**2)
+        err_sigma = None if err_var is None else np.sqrt(err_var)
+        e3, sigma_enu = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4,
+                                       error_sigma_m=err_sigma)
         three_d = three_d & np.isfinite(e3[:, 0])
         two_d = n_used == 3
         e2 = np.zeros_like(e3)
@@ -750,15 +758,17 @@ def position_errors(
         if k.size:
             e2[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
             # The 2D fix's own sigmas (GST), the held height counted as a measurement.
-            sigma_enu[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k],
-                                          held_height=True)[1]
+            sigma_enu[k] = errors.wls_fix(
+                sky.los_enu[k], used[k], sigma_i[k], eps[k], held_height=True,
+                error_sigma_m=None if err_sigma is None else err_sigma[k])[1]
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
         var += np.square(sigma_enu)
         modelled[:] = True
         n = used.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            range_rms = np.sqrt(np.where(used, sigma_i**2, 0.0).sum(axis=1) / n)
+            range_var = sigma_i**2 if err_var is None else err_var
+            range_rms = np.sqrt(np.where(used, range_var, 0.0).sum(axis=1) / n)
     sigma = np.where(modelled, np.sqrt(var), np.nan)
     return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms)
 
