@@ -532,6 +532,29 @@ def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges(
 QUIET_UERE = {**UNIT_UERE, "sis_m": 1e-9}  # dop_error's own range errors vanish
 
 
+def test_a_2d_fix_carries_its_held_heights_error_into_east_north():
+    """Three satellites (70, 35, 50 deg), ranges without error, a held height 8 m above the
+    antenna: the 3-state solution with the height fixed is G3^-1 (u_up x 8 m), G3 rows
+    [-e, -n, 1] (exact: three equations, three unknowns); the printed height is the held one."""
+    from dataclasses import replace as dc_replace
+
+    prof = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}})
+    az, el = [20.0, 140.0, 260.0], [70.0, 35.0, 50.0]
+    sky = FixedSky(az, el)
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    state = dc_replace(ReceiverState(), last_alt_hae_m=GEOREF.alt0_hae_m + 8.0)
+    fixes, _ = simulate(rx, 1.49e9 + np.arange(2.0), np.zeros((2, 3)), np.zeros((2, 3)),
+                        np.ones(2, bool), state, np.random.default_rng(0))
+    assert (fixes.mode == 2).all()
+    los = geodesy.azel_to_enu_unit(az, el)
+    g3 = np.column_stack([-los[:, 0], -los[:, 1], np.ones(3)])
+    want = np.linalg.solve(g3, los[:, 2] * 8.0)[:2]
+    err = _enu_errors(fixes)
+    np.testing.assert_allclose(err[:, :2], np.tile(want, (2, 1)), atol=1e-4)  # (0.1 mm)
+    np.testing.assert_allclose(err[:, 2], 8.0, atol=1e-6)
+    assert np.hypot(*want) > 1.0  # (a shift the fix used to miss: it moved by 0)
+
+
 def test_multipath_sigma_decays_with_elevation_and_wall_distance():
     from virtualgps.errors import multipath_sigma_m
 

@@ -638,6 +638,9 @@ class PositionErrors:
     sigma_enu_m : (n_t, 3) metres, the model's 1-sigma of each axis (what GST reports); NaN
         where the model has none
     range_rms_m : (n_t,) metres, RMS range error sigma of the used satellites (NaN: none)
+    held_gain_en : (n_t, 2) metres of east/north error per metre of error in a 2D fix's held
+        height (0 where the fix is not 2D): the 3-state solution's response to the ranges'
+        residual u_up x dh (:func:`carry_held_height`)
     """
 
     enu_m: np.ndarray
@@ -647,6 +650,7 @@ class PositionErrors:
     mp_m: np.ndarray | None
     sigma_enu_m: np.ndarray
     range_rms_m: np.ndarray
+    held_gain_en: np.ndarray
 
 
 def position_errors(
@@ -693,6 +697,7 @@ def position_errors(
     gm_state = mp_state = None
     three_d = n_used >= 4
     two_d = np.zeros(n_t, bool)
+    held_gain = np.zeros((n_t, 2))
     # The UERE sigma of each satellite (dop_error's weights; correlated_error's shape)
     sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof)) if prof.dop_error.enabled \
         else None
@@ -757,6 +762,11 @@ def position_errors(
         k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
         if k.size:
             e2[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
+            # A held height off by dh leaves u_up dh in each range's residual (rows [-e, -n,
+            # -u, 1]), which the 3-state solution moves into east/north: its response to 1 m.
+            up = np.where(np.isnan(sky.los_enu[k][..., 2]), 0.0, sky.los_enu[k][..., 2])
+            held_gain[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], up,
+                                          n_states=3)[0][:, :2]
             # The 2D fix's own sigmas (GST), the held height counted as a measurement.
             sigma_enu[k] = errors.wls_fix(
                 sky.los_enu[k], used[k], sigma_i[k], eps[k], held_height=True,
@@ -770,7 +780,42 @@ def position_errors(
             range_var = sigma_i**2 if err_var is None else err_var
             range_rms = np.sqrt(np.where(used, range_var, 0.0).sum(axis=1) / n)
     sigma = np.where(modelled, np.sqrt(var), np.nan)
-    return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms)
+    held_gain = np.where(np.isfinite(held_gain), held_gain, 0.0)
+    return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms, held_gain)
+
+
+def carry_held_height(
+    err_enu_m: np.ndarray, err: PositionErrors, has_fix: np.ndarray, truth_alt_hae_m: np.ndarray,
+    last_alt_hae_m: float,
+) -> np.ndarray:
+    """2D fixes carry their held height's error into east/north.
+
+    A 2D fix holds the altitude of the last 3D fix; where that is off the antenna's true
+    height by dh (the 3D fix's vertical error, plus any climb since), the 3-state solution
+    moves by ``held_gain_en`` x dh horizontally (Misra & Enge 6.1 with the height fixed).
+
+    Parameters
+    ----------
+    err_enu_m : (n_t, 3) metres, the fix errors (up meaningless on 2D epochs)
+    err : the epochs' :class:`PositionErrors`
+    has_fix : (n_t,) bool, epochs with a fix
+    truth_alt_hae_m : (n_t,) metres, the antenna's true height
+    last_alt_hae_m : the altitude of the last 3D fix before the batch (NaN: none)
+
+    Returns
+    -------
+    err_enu_m : (n_t, 3) with the 2D epochs' east/north moved
+    """
+    two = has_fix & err.two_d & ~err.three_d
+    if not two.any():
+        return err_enu_m
+    held, _ = hold_altitude(truth_alt_hae_m + err_enu_m[:, 2], has_fix & err.three_d, two,
+                            last_alt_hae_m)
+    dh = np.where(two, held - truth_alt_hae_m, 0.0)
+    dh = np.where(np.isfinite(dh), dh, 0.0)  # (no 3D altitude to hold yet: no fix anyway)
+    out = err_enu_m.copy()
+    out[:, :2] += err.held_gain_en * dh[:, None]
+    return out
 
 
 def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
@@ -1082,7 +1127,7 @@ def simulate(
     mode = np.where(has_fix, mode, MODE_NONE)
     vel = np.asarray(vel_enu_mps, dtype=float)
     vel = np.where(np.isnan(vel), 0.0, vel)
-    err_m = err.enu_m
+    err_m = carry_held_height(err.enu_m, err, has_fix, sky.alt_hae_m, state.last_alt_hae_m)
     if state.start_bias_enu_m is not None:  # start-up error converging after the first fix
         since = np.maximum(t - state.no_fix_until_t_unix_s, 0.0)
         decay = np.exp(-since / prof.cold_start.converge_tau_s)[:, None]
