@@ -500,6 +500,37 @@ def test_reported_sigma_is_that_of_the_errors_made(extra):
     assert (fixes.sigma_enu_m[0] > _run(plain, sky, n_t=1)[0].sigma_enu_m[0]).all()
 
 
+def test_a_static_receiver_prints_doppler_speed_noise_and_a_wandering_course():
+    """Range-rate errors (sigma at the zenith x the UERE's elevation shape, sigma_i / sigma_z)
+    through the same WLS (weights 1 / sigma_i^2): the velocity error's covariance is
+    (sigma_rr / sigma_z)^2 (G^T W G)^-1 (issue #11: speeds were 0.00 kn, the course fixed)."""
+    from virtualgps import errors, nmea
+
+    prof = load_profile("ideal", {"dop_error": {"enabled": True, "range_rate_sigma_mps": 0.05,
+                                                "range_rate_tau_s": 1.0}})
+    az, el = np.linspace(0, 300, 7), np.linspace(10, 80, 7)
+    fixes, _ = _run(prof, FixedSky(az, el), n_t=20_000, seed=3)
+    assert (fixes.speed_mps > 0).all()
+    assert np.mean(np.diff(fixes.course_deg) != 0) > 0.99
+    # the east/north velocity error's spread from the speed and course
+    ve = fixes.speed_mps * np.sin(np.radians(fixes.course_deg))
+    vn = fixes.speed_mps * np.cos(np.radians(fixes.course_deg))
+    d = prof.dop_error
+    uere = (d.sis_m, d.iono_zenith_m, d.tropo_zenith_m, d.rx_noise_m, d.multipath_a_m,
+            d.multipath_b_m)
+    sigma_i = errors.uere_sigma_m(el, *uere)
+    los = geodesy.azel_to_enu_unit(az, el)
+    g = np.column_stack([-los, np.ones(7)])
+    q = np.linalg.inv(g.T @ (g / sigma_i[:, None] ** 2))
+    want = 0.05 / errors.uere_sigma_m(90.0, *uere) * np.sqrt(np.diag(q)[:2])
+    np.testing.assert_allclose([ve.std(), vn.std()], want, rtol=0.05)
+    # RMC and VTG print the same speed and course
+    fmt = nmea.NmeaFormat.from_dict({"sentences": ["RMC", "VTG"]})
+    rmc, vtg = (pynmeagps.NMEAReader.parse(line + b"\r\n") for line in
+                nmea.epoch_sentences(fixes, 5, fmt).split(b"\r\n")[:2])
+    assert float(rmc.spd) == float(vtg.sogn) and float(rmc.cog) == float(vtg.cogt)
+
+
 def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges():
     from virtualgps.receiver import restart
 
@@ -599,9 +630,9 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     layout_on, layout_off = draw_layout(on, 6), draw_layout(off, 6)
     # The effect's uniforms come after every other block (its own stream: see
     # test_switching_one_effect_leaves_the_others_random_numbers_alone).
-    assert {k: v for k, v in layout_on.items() if k not in ("multipath", "total")} == \
-        {k: v for k, v in layout_off.items() if k != "total"}
-    assert layout_on["multipath"] == layout_off["total"]
+    others = ("multipath", "velocity", "total")
+    assert {k: v for k, v in layout_on.items() if k not in others} == \
+        {k: v for k, v in layout_off.items() if k not in others}
     u = np.random.default_rng(3).random((1, layout_on["total"]))
     args = (sky, used, used.sum(axis=1), np.array([np.inf]), ReceiverState())
     e_on = position_errors(on, *args, u, layout_on)

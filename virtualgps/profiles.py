@@ -121,6 +121,12 @@ class DopErrorParams:
     rx_noise_m: float = 0.5
     multipath_a_m: float = 0.13
     multipath_b_m: float = 0.53
+    # Doppler: each satellite's range-rate error (zenith sigma, m/s, scaled with elevation like
+    # the UERE; first-order Gauss-Markov over range_rate_tau_s), solved by the same weighted
+    # least squares into the reported velocity: a static receiver prints small speeds and a
+    # wandering course, as the MT3339's static hours do (calibrated there, README).
+    range_rate_sigma_mps: float = 0.05
+    range_rate_tau_s: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -89,6 +89,8 @@ class ReceiverState:
         flags, epochs spent at or above the acquisition threshold; None before the first epoch
     mp_m : (n_sat,) float, the ``multipath`` Gauss-Markov processes (unit variance; scaled by
         each epoch's sigma) after the last epoch, None before the first
+    rr_mps : (n_sat,) float, the Doppler range-rate Gauss-Markov processes (unit variance) after
+        the last epoch, None before the first
     streams : {model: Generator}, the error models' own random streams (see
         :func:`model_streams`), made from the run's generator at its first epoch
     """
@@ -106,6 +108,7 @@ class ReceiverState:
     tracked: np.ndarray | None = field(default=None, compare=False)
     acq_run: np.ndarray | None = field(default=None, compare=False)
     mp_m: np.ndarray | None = field(default=None, compare=False)
+    rr_mps: np.ndarray | None = field(default=None, compare=False)
     streams: dict | None = field(default=None, compare=False)
 
 
@@ -564,7 +567,8 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
 
     Returns
     -------
-    layout : start columns ("usarsim", "white", "gm", "fade", "multipath") and "total"; a
+    layout : start columns ("usarsim", "white", "gm", "fade", "multipath", "velocity") and
+        "total"; a
         model that is off takes none
     """
     even = n_sat + (n_sat % 2)  # Box-Muller works in pairs
@@ -583,6 +587,9 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
     if profile.multipath.enabled:
         cols["multipath"] = total
         total += even
+    if profile.dop_error.enabled and profile.dop_error.range_rate_sigma_mps > 0:
+        cols["velocity"] = total
+        total += even
     cols["total"] = total
     return cols
 
@@ -592,7 +599,7 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
 # profiles that differ in one effect, run with the same seed, differ by that effect alone
 # (common random numbers; the gap tool's fits compare exactly such profiles). One row of the
 # run's own generator would reshuffle every column when a model's width joins the row.
-_STREAM_KEYS = {"white": 1, "gm": 2, "fade": 3, "multipath": 4}
+_STREAM_KEYS = {"white": 1, "gm": 2, "fade": 3, "multipath": 4, "velocity": 5}
 _STREAM_DOMAIN = 0x76677073  # "vgps": keeps these spawn keys apart from a caller's own
 
 
@@ -782,6 +789,44 @@ def position_errors(
     sigma = np.where(modelled, np.sqrt(var), np.nan)
     held_gain = np.where(np.isfinite(held_gain), held_gain, 0.0)
     return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms, held_gain)
+
+
+def velocity_errors(
+    prof: Profile, sky: Sky, used: np.ndarray, dt_s: np.ndarray, state: ReceiverState,
+    u: np.ndarray, layout: dict[str, int],
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The reported velocity's error: Doppler range-rate errors solved like the ranges.
+
+    Each satellite's range-rate error is a unit first-order Gauss-Markov process times
+    ``dop_error.range_rate_sigma_mps`` scaled with elevation like the UERE; the weighted least
+    squares of the position (4 states; 3 for a 2D fix) turns them into east/north/up velocity
+    errors, so they grow with the DOP and jump when the used set changes.
+
+    Parameters
+    ----------
+    prof, sky, used, dt_s, state, u, layout : as :func:`position_errors`
+
+    Returns
+    -------
+    vel_err_enu_mps : (n_t, 3) metres per second (0 without ``dop_error`` or a fix)
+    rr_mps : (n_sat,) the processes after the batch (None when off)
+    """
+    n_t, n_sat = used.shape
+    d = prof.dop_error
+    if "velocity" not in layout:
+        return np.zeros((n_t, 3)), None
+    c = layout["velocity"]
+    z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
+    x = errors.gauss_markov(_gm_start(state.rr_mps, n_sat), dt_s, d.range_rate_tau_s,
+                            np.ones(n_sat), z)
+    uere = _uere_args(prof)
+    sigma_i = errors.uere_sigma_m(sky.el_deg, *uere)
+    eps = d.range_rate_sigma_mps * (sigma_i / _uere_zenith_m(uere)) * x
+    e = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4)[0]
+    k = np.flatnonzero(used.sum(axis=1) == 3)
+    if k.size:  # a 2D fix: east/north/clock drift
+        e[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
+    return np.where(np.isfinite(e), e, 0.0), x[-1]
 
 
 def carry_held_height(
@@ -1151,8 +1196,11 @@ def simulate(
     mode = np.where(has_fix, mode, MODE_NONE)
     geoid = geodesy.geoid_sep_m(lat, lon)
 
-    speed = np.hypot(vel[:, 0], vel[:, 1])
-    course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1])) % 360.0
+    # Speed and course from the Doppler-derived velocity: the truth plus its error.
+    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, u, layout)
+    v_rep = vel + vel_err
+    speed = np.hypot(v_rep[:, 0], v_rep[:, 1])
+    course = np.degrees(np.arctan2(v_rep[:, 0], v_rep[:, 1])) % 360.0
 
     in_view = (sky.el_deg >= 0.0) & pose_valid[:, None]  # NaN elevation: False
     nofix = np.where(has_fix, 1.0, np.nan)
@@ -1190,6 +1238,7 @@ def simulate(
         last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
         gm_m=err.gm_m,
         mp_m=err.mp_m,
+        rr_mps=rr_state,
         streams=streams,
         last_alt_hae_m=last_alt,
         **track_state,

@@ -92,6 +92,7 @@ STATISTICS = (
     Statistic("sats_in_view_mean", "m241_moving", "satellites in view, mean"),
     Statistic("hdop_median", "m241_moving", "HDOP median"),
     Statistic("hdop_p75", "m241_moving", "HDOP 75 %"),
+    Statistic("speed_median_kn", "mt3339_static", "speed while static, median (kn)"),
     # Shown for what they say about the model's limits, not calibrated: one hour of a
     # correlated error fixes the axes' ratio only loosely, and MTK smooths its height (the
     # simulated vertical error follows VDOP); the used set changes more often in reality.
@@ -100,6 +101,11 @@ STATISTICS = (
     Statistic("sigma_u_m", "mt3339_static", "1-sigma up (m)", None),
     Statistic("sats_used_changes_per_min", "mt3339_static", "used-set changes per minute", None),
     Statistic("sats_used_changes_per_min", "m241_moving", "used-set changes per minute", None),
+    # Doppler speed noise: the median is fitted; the real hour's tail is heavier than a
+    # Gaussian velocity error's, and its course changes as often as the simulated one's.
+    Statistic("speed_p90_kn", "mt3339_static", "speed while static, 90 % (kn)", None),
+    Statistic("course_change_share", "mt3339_static", "share of epochs whose course changes",
+              None),
 )
 
 

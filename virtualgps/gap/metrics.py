@@ -15,6 +15,7 @@ accuracy of the GPS SPS Performance Standard (DoD, 5th ed., 2020).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -632,4 +633,30 @@ def summary(
     )
     out.update({f"cn0_{k}_dbhz": v for k, v in cs.items() if k != "n"})
     out["cn0_n"] = cs["n"]
+    out.update(speed_summary(_opt(epochs, "speed_mps"), _opt(epochs, "course_deg"), fixed))
+    return out
+
+
+MPS_PER_KNOT = 1852.0 / 3600.0
+
+
+def speed_summary(speed_mps: object, course_deg: object, fixed: np.ndarray
+                  ) -> dict[str, float]:
+    """The reported speed's median and 90th percentile (knots, as NMEA prints it) and the share
+    of consecutive fixes whose course differs, over the fixed epochs (NaN where absent).
+
+    speed_mps, course_deg : (n_t,) or None; fixed : (n_t,) bool
+    """
+    out = {"speed_median_kn": math.nan, "speed_p90_kn": math.nan, "course_change_share": math.nan}
+    if speed_mps is not None:
+        kn = np.asarray(speed_mps, dtype=float)[fixed] / MPS_PER_KNOT
+        kn = kn[np.isfinite(kn)]
+        if kn.size:
+            out["speed_median_kn"] = float(np.median(kn))
+            out["speed_p90_kn"] = float(np.percentile(kn, 90))
+    if course_deg is not None:
+        c = np.asarray(course_deg, dtype=float)[fixed]
+        c = c[np.isfinite(c)]
+        if c.size > 1:
+            out["course_change_share"] = float(np.mean(np.diff(c) != 0))
     return out
