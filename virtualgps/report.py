@@ -200,7 +200,8 @@ def write_html(report: dict, data: GapFigureData, path: str | Path) -> None:
         _table(report.get("not_assessed", []), ["metric", "reason"]),
         "<h2>Runs as read</h2>",
         _table([r for r in runs if isinstance(r, dict)],
-               ["name", "real", "truth", "epochs", "skipped", "time_offset_s", "simulated_in"]),
+               ["name", "real", "truth", "epochs", "skipped", "time_offset_s", "simulated_in",
+                "silent_prns"]),
     ]
     Path(path).write_text(_page("virtualgps gap", body), encoding="utf-8")
 

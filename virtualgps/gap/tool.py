@@ -5,6 +5,7 @@ parses arguments and prints.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -53,6 +54,42 @@ def _names(paths: Sequence[str]) -> list[str]:
     return out
 
 
+def nearest_tle_set(extra: Sequence[Path], t_unix_s: float) -> Path:
+    """The TLE set whose epoch lies nearest ``t_unix_s`` among ``extra`` (the scene's), the
+    bundled sets and those ``virtualgps ephemeris fetch`` cached: a real log must be compared
+    with its own day's sky, which a set months away gives only shifted (per-PRN comparisons
+    then mean nothing; :func:`sky_note` says so)."""
+    from virtualgps import tlecache
+
+    sets = [(p, None) for p in extra]
+    sets += [(p, None) for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob("*.tle"))]
+    sets += [(c.path, c.epoch_center_unix_s) for c in tlecache.cached_sets()]
+    best, best_dt = eph.default_tle_path(), math.inf
+    for path, epoch in sets:
+        try:
+            epoch = eph.load_tle(path).epoch_center_unix_s if epoch is None else epoch
+        except (OSError, ValueError):
+            continue
+        if abs(epoch - t_unix_s) < best_dt:
+            best, best_dt = path, abs(epoch - t_unix_s)
+    return best
+
+
+def sky_note(epoch_center_unix_s: float, t_unix_s: float) -> str | None:
+    """A warning when a run lies further than SKY_SHIFT_MAX_DAYS from the TLE set's epoch (its
+    satellites then stand where that set puts them at the same sidereal time, not where they
+    were), else None."""
+    days = abs(t_unix_s - epoch_center_unix_s) / 86400.0
+    if days <= SKY_SHIFT_MAX_DAYS:
+        return None
+    from datetime import UTC, datetime
+
+    day = datetime.fromtimestamp(t_unix_s, UTC).date().isoformat()
+    return (f"the TLE set's epoch is {days:.0f} days from the log ({day}): its sky is shifted "
+            "to the same sidereal time, not the log's own; per-satellite results need that "
+            "day's set (--tle: a TLE set or the day's RINEX navigation file)")
+
+
 def load_inputs(inp: GapInputs):
     """Read the runs, the scene, the TLE set and the profile (every input error raised here).
 
@@ -79,10 +116,10 @@ def load_inputs(inp: GapInputs):
         scene = load_scene(spath)
     if inp.tle is not None:
         tle = Path(inp.tle)
-    elif scene is not None and getattr(scene, "tle_path", None) is not None:
-        tle = Path(scene.tle_path)
     else:
-        tle = eph.default_tle_path()
+        scene_tle = getattr(scene, "tle_path", None) if scene is not None else None
+        tle = nearest_tle_set([Path(scene_tle)] if scene_tle else [],
+                              float(runs[0].epochs.t_unix_s[0]))
     if not tle.exists():
         raise ConfigError(f"TLE file {tle} not found (give --tle PATH)")
     table, source = load_profile_dict(inp.profile)
@@ -113,7 +150,9 @@ def diagnose(
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
 
-    say(f"{len(runs_in)} run(s) read; simulating along their truth")
+    say(f"{len(runs_in)} run(s) read; ephemeris {Path(tle).name}; simulating along their truth")
+    notes = {r.name: n for r in runs_in
+             if (n := sky_note(ephem.epoch_center_unix_s, float(r.epochs.t_unix_s[0])))}
     runs = dg.prepare_runs(runs_in, scene, scene_dir, tle, profile, shift, opts)
     has_mesh = any(r.setup.scene_path is not None for r in runs) and bool(
         getattr(scene, "has_mesh", False))
@@ -130,8 +169,10 @@ def diagnose(
     elapsed = time.perf_counter() - t_start
     report = {
         "runs": [{"name": r.view.name, "real": str(ri.path), "truth": ri.truth.kind,
-                  "epochs": int(r.view.t_unix_s.size), **r.info}
+                  "epochs": int(r.view.t_unix_s.size), **r.info,
+                  **({"sky_warning": notes[ri.name]} if ri.name in notes else {})}
                  for r, ri in zip(runs, runs_in, strict=True)],
+        "ephemeris": str(tle),
         "profile": profile.name,
         "profile_source": source,
         "seeds": opts.seeds,
@@ -283,6 +324,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
              f"{report['gap_final']:.3f} (held out: {report['effects'][0]['heldout_scheme']})"
              if report["effects"] else f"profile {report['profile']}: gap "
              f"{report['gap_baseline']:.3f}, no candidate effect"]
+    lines += [f"  warning: {r['name']}: {r['sky_warning']}" for r in report["runs"]
+              if r.get("sky_warning")]
     located = [w for w in report["where"] if w["outside"] and w["segment"] in (
         "all", "startup", "steady", "moving", "stationary", "near_buildings", "open")]
     located.sort(key=lambda w: -w.get("distance", 0.0))
