@@ -122,7 +122,7 @@ def test_fit_keeps_the_default_without_evidence():
 
 def test_learned_sky_mask_blocks_bins_the_real_receiver_loses():
     n_bins = 6 * 12  # 15 x 30 deg bins
-    counts = np.zeros((3, n_bins))
+    counts = np.zeros((5, n_bins))
     counts[0, [8, 9, 30, 40]] = [600, 600, 600, 10]  # compared satellite-epochs
     counts[2, [8, 9, 30, 40]] = [290, 580, 600, 10]  # simulated tracked (low bins: part time)
     counts[1, [8, 9, 30, 40]] = [0, 520, 590, 0]  # real: loses bin 8 (and 40, too few epochs)
@@ -131,6 +131,23 @@ def test_learned_sky_mask_blocks_bins_the_real_receiver_loses():
     assert atten.shape == (1, 12) and np.isinf(atten[0, 8]) and np.isfinite(atten).sum() == 11
     counts[1, 8] = 200  # tracked 2/3 as often as simulated: an attenuation, not a mask
     assert fx.learned_sky_mask(counts, 0.25, 30.0, 15.0) is None
+
+
+def test_learned_sky_mask_attenuates_bins_tracked_weaker():
+    n_bins = 6 * 12
+    counts = np.zeros((5, n_bins))
+    counts[0, [3, 20, 50]] = 600
+    counts[1, [3, 20, 50]] = [600, 590, 20]  # real tracked (bin 50: too few to judge its SNR)
+    counts[2, [3, 20, 50]] = 600  # simulated tracked
+    counts[3, [3, 20, 50]] = np.array([600, 590, 20]) * [30.0, 38.0, 10.0]  # real SNR sums
+    counts[4, [3, 20, 50]] = 600 * np.array([42.0, 39.5, 40.0])  # simulated SNR sums
+    blocked = np.array(fx.learned_sky_mask(counts, 0.25, 30.0, 15.0)["sky_mask"]["atten_db"])
+    assert np.isinf(blocked[4, 2]) and (blocked > 0).sum() == 1  # (no attenuation asked)
+    atten = np.array(fx.learned_sky_mask(counts, 0.25, 30.0, 15.0, atten=True)
+                     ["sky_mask"]["atten_db"])
+    # bin 3: 12 dB weaker; bin 20: 1.5 dB, within a log's fades; bin 50 lost: blocked
+    assert atten.shape == (5, 12) and atten[0, 3] == 12.0 and atten[1, 8] == 0.0
+    assert np.isinf(atten[4, 2]) and (atten > 0).sum() == 2
 
 
 def test_selfcheck_sector_lies_where_satellites_pass_low_inside_and_outside():
@@ -320,3 +337,13 @@ def test_gap_cli_errors_are_one_line(tmp_path):
         assert r.returncode == 2, (args, r.stderr)
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("virtualgps: error:"), r.stderr
+
+
+def test_a_high_satellite_never_tracked_is_silent_not_blocked():
+    # PRN columns: 0 high and tracked; 1 high (60 deg) never tracked: not transmitting;
+    # 2 low (20 deg) never tracked: blocked, still compared.
+    el = np.tile([70.0, 60.0, 20.0], (50, 1))
+    tracked = np.zeros((50, 3), bool)
+    tracked[:, 0] = True
+    silent = dg._silent_prns(tracked, el, np.ones((50, 3), bool))
+    assert silent.tolist() == [False, True, False]

@@ -221,6 +221,9 @@ def prepare_runs(
         with np.errstate(invalid="ignore"):
             above = el >= mask
         sat_ok = above & listed[:, None] & setup.valid[:, None]
+        silent = _silent_prns(real.tracked[0], el, sat_ok) if run.has_cn0 else np.zeros(
+            geom.prn.size, bool)
+        sat_ok &= ~silent[None, :]
         reference = "median" if run.truth.kind == "static" else "truth"
         view = RunView(
             name=run.name, t_unix_s=setup.t_unix_s, power_on_unix_s=float(setup.t_unix_s[0]),
@@ -236,8 +239,25 @@ def prepare_runs(
             "skipped": dict(run.skipped), "sentences": dict(run.sentences),
             "time_offset_s": run.time_offset_s, "offset": dict(run.offset_info),
             "simulated_in": "scene" if setup.scene_path else "open sky",
+            "silent_prns": [int(p) for p in geom.prn[silent]],
         }))
     return out
+
+
+# A satellite the real receiver never tracks in a whole run, though it rose this high above the
+# antenna, is taken as not transmitting (unhealthy, or retired while the TLE set still lists it:
+# the MT3339 hour lists PRN 8 at 60-90 deg for an hour with no SNR), not as blocked: it is left
+# out of the tracking comparisons, where it would teach a sky mask to block its path.
+SILENT_MIN_EL_DEG = 45.0
+
+
+def _silent_prns(real_tracked: np.ndarray, el_deg: np.ndarray, sat_ok: np.ndarray
+                 ) -> np.ndarray:
+    """(k,) bool: PRNs compared at an elevation of SILENT_MIN_EL_DEG or more and never tracked
+    in the run. real_tracked, el_deg, sat_ok : (n, k)."""
+    with np.errstate(invalid="ignore"):
+        high = (sat_ok & (el_deg >= SILENT_MIN_EL_DEG)).any(axis=0)
+    return high & ~(real_tracked & sat_ok).any(axis=0)
 
 
 def snap_epochs(t_unix_s: np.ndarray) -> np.ndarray:
@@ -368,7 +388,7 @@ class Simulator:
         return self._parts.get((fx.to_toml(table), unit), {})
 
     def sky_bins(self, table: dict[str, Any], units: Sequence[int]) -> np.ndarray:
-        """(3, n_bins) tracking counts per sky bin summed over units under a table."""
+        """(5, n_bins) tracking counts and SNR sums per sky bin summed over units under a table."""
         self.unit_gaps(table, list(units))
         key = fx.to_toml(table)
         return np.sum([self._bins[(key, u)] for u in units], axis=0)
@@ -439,7 +459,7 @@ def _options(sim: Simulator, table: dict, cand: fx.Candidate, train: Sequence[in
     if not cand.learned:
         return list(cand.grid), cand.default
     counts = sim.sky_bins(table, train)
-    masks = [fx.learned_sky_mask(counts, lv, SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG)
+    masks = [fx.learned_sky_mask(counts, lv, SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, cand.learned_atten)
              for lv in cand.learned]
     masks = [m for m in masks if m is not None]
     return (masks, len(masks) // 2) if masks else ([{}], 0)

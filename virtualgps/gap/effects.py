@@ -41,6 +41,7 @@ class Candidate:
     params: tuple[str, ...]
     default: int = 0
     learned: tuple[float, ...] = ()  # sky_mask: its grid is learned per fold, at these levels
+    learned_atten: bool = False  # sky_mask: also C/N0 deficits as attenuation (cn0_tracking on)
 
     def params_of(self, overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:
         """The fitted parameters of an override table as profile keys (flat, for the report)."""
@@ -155,8 +156,11 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     if name == "sky_mask":
         if not has_gsv:
             return "needs GSV with SNR in the real logs (it is learned from what they track)"
+        # Attenuation only means something to a receiver whose tracking follows C/N0; without
+        # cn0_tracking a C/N0 deficit is that effect's to explain, not a direction's.
         return Candidate(name, (), ("az_bin_deg", "el_bin_deg", "atten_db"),
-                         learned=SKY_MASK_LEVELS)
+                         learned=SKY_MASK_LEVELS,
+                         learned_atten=_enabled(profile, "cn0_tracking"))
     if name == "cn0_tracking":
         grid = _points(name, on, cn0_zenith_dbhz=(30.0, 33.0, 36.0, 39.0, 42.0, 45.0),
                        horizon_loss_db=(10.0, 16.0, 22.0))
@@ -189,20 +193,28 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
 SKY_MASK_LEVELS = (0.1, 0.25, 0.4)
 SKY_MASK_SIM_SHARE = 0.2
 SKY_MASK_MIN_EPOCHS = 30  # satellite-epochs a bin needs before it can be judged
+# A bin's mean SNR deficit (dB) below which it is not attenuated: a 15-minute log's fades
+# (sigma 2-3.5 dB over 10-20 s) move a bin's mean by about 1 dB.
+SKY_MASK_MIN_DEFICIT_DB = 2.0
 
 
-def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: float
-                     ) -> dict[str, dict[str, Any]] | None:
+def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: float,
+                     atten: bool = False) -> dict[str, dict[str, Any]] | None:
     """A ``sky_mask`` table blocking the sky bins where the real receiver loses what the
-    simulation tracks (obstacles the scene lacks: a vehicle roof, a wall, a tree).
+    simulation tracks (obstacles the scene lacks: a vehicle roof, a wall, a tree), and with
+    ``atten`` attenuating those where it tracks them weaker (a roof or a window over an
+    antenna indoors, a crown in leaf: DESIGN 7.5's "C/N0 deficit in fixed sky directions").
 
     Parameters
     ----------
-    counts : (3, n_el * n_az) compared, real tracked, simulated tracked satellite-epochs per bin
-        (rows from the horizon up; :func:`virtualgps.gap.where.bin_tracking` summed over units)
+    counts : (5, n_el * n_az) per bin: compared, real tracked, simulated tracked
+        satellite-epochs, real and simulated SNR sums over the tracked ones (rows of bins from
+        the horizon up; :func:`virtualgps.gap.where.bin_tracking` summed over units)
     level : real tracked share, as a fraction of the simulated one, at or below which a bin is
         masked
     az_bin_deg, el_bin_deg : the bins' size
+    atten : also attenuate the bins tracked by both whose mean SNR is lower in the real log by
+        at least SKY_MASK_MIN_DEFICIT_DB (by that deficit, to the nearest dB)
 
     Returns
     -------
@@ -214,12 +226,18 @@ def learned_sky_mask(counts: Any, level: float, az_bin_deg: float, el_bin_deg: f
     n_az = int(round(360.0 / az_bin_deg))
     with np.errstate(invalid="ignore", divide="ignore"):
         real, simu = c[1] / c[0], c[2] / c[0]
+        deficit = c[4] / c[2] - c[3] / c[1]
     masked = ((c[0] >= SKY_MASK_MIN_EPOCHS) & (simu >= SKY_MASK_SIM_SHARE)
               & (real <= level * simu))
-    if not masked.any():
+    db = np.where(masked, np.inf, 0.0)
+    if atten:
+        weaker = ((c[1] >= SKY_MASK_MIN_EPOCHS) & (c[2] >= SKY_MASK_MIN_EPOCHS) & ~masked
+                  & (deficit >= SKY_MASK_MIN_DEFICIT_DB))
+        db = np.where(weaker, np.round(np.where(weaker, deficit, 0.0)), db)
+    if not (db > 0).any():
         return None
-    rows = np.where(masked, np.inf, 0.0).reshape(-1, n_az)
-    last = int(np.flatnonzero(masked.reshape(-1, n_az).any(axis=1)).max()) + 1
+    rows = db.reshape(-1, n_az)
+    last = int(np.flatnonzero((rows > 0).any(axis=1)).max()) + 1
     return {"sky_mask": {"enabled": True, "az_bin_deg": az_bin_deg, "el_bin_deg": el_bin_deg,
                          "atten_db": [list(map(float, r)) for r in rows[:last]]}}
 

@@ -289,21 +289,24 @@ SKY_BIN_EL_DEG = 15.0
 def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray) -> np.ndarray:
     """Per sky bin (SKY_BIN_EL_DEG x SKY_BIN_AZ_DEG, rows from the horizon up, azimuth from
     north): compared satellite-epochs, tracked by the real receiver, tracked by the simulation
-    (mean over seeds); what a learned sky mask is made from.
+    (mean over seeds), and the sums of the tracked satellites' SNR, real and simulated (mean
+    over seeds); what a learned sky mask is made from.
 
-    Returns (3, n_el * n_az) float (zeros without GSV/SNR in the real log)
+    Returns (5, n_el * n_az) float (zeros without GSV/SNR in the real log)
     """
     n_az, n_el = int(360 / SKY_BIN_AZ_DEG), int(90 / SKY_BIN_EL_DEG)
-    out = np.zeros((3, n_el * n_az))
+    out = np.zeros((5, n_el * n_az))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
         return out
     m = view.sat_ok & (epochs & view.valid)[:, None]
     r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
     c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0, n_az - 1)
     b = (r * n_az + c)[m]
-    out[0] = np.bincount(b, minlength=n_el * n_az)
-    out[1] = np.bincount(b, weights=view.real.tracked[0][m], minlength=n_el * n_az)
-    out[2] = np.bincount(b, weights=sims.tracked[:, m].mean(axis=0), minlength=n_el * n_az)
+    real_cn0 = np.where(view.real.tracked[0], view.real.cn0_dbhz[0], 0.0)[m]
+    sim_cn0 = np.where(sims.tracked, sims.cn0_dbhz, 0.0)[:, m].mean(axis=0)
+    for row, w in enumerate((None, view.real.tracked[0][m], sims.tracked[:, m].mean(axis=0),
+                             np.nan_to_num(real_cn0), np.nan_to_num(sim_cn0))):
+        out[row] = np.bincount(b, weights=w, minlength=n_el * n_az)
     return out
 
 
