@@ -350,3 +350,24 @@ def test_mt3339_static_hour_reproduces_sources_facts(shared_data):
     assert 7 <= mv["sats_used_min"] <= mv["sats_used_median"] <= mv["sats_used_max"] <= 12
     assert mv["sats_used_max"] <= mv["sats_in_view_max"]
     assert 0.8 < mv["hdop_median"] < 2.0
+
+
+def test_used_set_vdop_closed_form():
+    # A satellite at the zenith and three on the horizon 120 deg apart: the vertical/clock
+    # block of G'G is [[1, 1], [1, 4]], so VDOP = sqrt(4 / 3).
+    el = np.array([[90.0, 0.0, 0.0, 0.0, 45.0]])
+    az = np.array([[0.0, 0.0, 120.0, 240.0, 10.0]])
+    used = np.array([[True, True, True, True, False]])
+    np.testing.assert_allclose(M.used_set_vdop(el, az, used), [np.sqrt(4.0 / 3.0)])
+    # fewer than four used: no VDOP
+    assert np.isnan(M.used_set_vdop(el, az, used & [[1, 1, 1, 0, 0]])[0])
+
+
+def test_elevation_bin_stats():
+    el = np.array([[10.0, 20.0, 70.0, 50.0], [12.0, 25.0, 80.0, 3.0]])
+    cn0 = np.array([[30.0, np.nan, 40.0, 35.0], [32.0, 28.0, 44.0, 20.0]])
+    listed = np.array([[True, True, True, True], [True, True, True, False]])
+    s = M.elevation_bin_stats(el, cn0, listed)
+    assert s["cn0_el5_15_median_dbhz"] == 31.0 and s["tracked_el5_15_share"] == 1.0
+    assert s["cn0_el15_30_median_dbhz"] == 28.0 and s["tracked_el15_30_share"] == 0.5
+    assert s["cn0_el30_60_median_dbhz"] == 35.0 and s["cn0_el60_90_median_dbhz"] == 42.0

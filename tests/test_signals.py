@@ -72,6 +72,24 @@ def test_receiver_snr_used_and_blocked_with_cn0_tracking():
     assert state.tracked.tolist() == tracked[-1].tolist()
 
 
+def test_weak_satellites_are_tracked_but_left_out_of_the_fix():
+    # use_dbhz: el 10 arrives at 45 - 20 (1 - sin 10) = 28.5 dB-Hz, tracked (>= 25) and printed
+    # in GSV, but below the use threshold of 30 it stays out of GSA and the fix; the state keeps
+    # it tracked.
+    prof = _cn0_profile(cn0_zenith_dbhz=45.0, horizon_loss_db=20.0, acq_dbhz=26.0,
+                        track_dbhz=25.0, use_dbhz=30.0)
+    sky = FixedSky([0.0, 90.0, 200.0, 300.0, 250.0], [80.0, 40.0, 10.0, 60.0, 30.0])
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    n = 5
+    fixes, state = simulate(rx, 1.49e9 + np.arange(float(n)), np.zeros((n, 3)),
+                            np.zeros((n, 3)), np.ones(n, bool), ReceiverState(),
+                            np.random.default_rng(0))
+    tracked = ~np.isnan(fixes.cn0_dbhz)
+    assert tracked[1:].all()
+    assert fixes.used[1:].tolist() == [[True, True, False, True, True]] * (n - 1)
+    assert state.tracked.all()
+
+
 def test_cn0_tracking_off_leaves_the_receiver_as_it_was():
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
     rx_on = Receiver(profile=_cn0_profile(acq_dbhz=0.0, track_dbhz=0.0, reacq_s=0.0),

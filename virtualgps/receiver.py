@@ -905,7 +905,7 @@ def tracked_cn0(
     Returns
     -------
     cn0_dbhz : (n_t, n_sat) dB-Hz of tracked satellites, NaN elsewhere
-    tracked : (n_t, n_sat) bool
+    usable : (n_t, n_sat) bool, tracked and (``use_dbhz``) strong enough to use in the fix
     state_update : the new ``fade_db``, ``tracked`` and ``acq_run`` for the receiver state
     """
     ct = prof.cn0_tracking
@@ -929,7 +929,8 @@ def tracked_cn0(
     run0 = state.acq_run if state.acq_run is not None else np.zeros(n_sat, int)
     tracked, run = signals.track(cn0, ct.acq_dbhz, ct.track_dbhz, reacq, tracked0, run0)
     out = np.where(tracked, cn0, np.nan)
-    return out, tracked, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
+    usable = tracked & (cn0 - fade >= ct.use_dbhz) if ct.use_dbhz > 0.0 else tracked
+    return out, usable, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
 
 
 def nav_filter(
@@ -1147,8 +1148,8 @@ def simulate(
     # bits; equal steps keep the Gauss-Markov recursions on their one-coefficient fast path.
     dt_s = np.round(dt_s, 6)
     if prof.cn0_tracking.enabled:
-        cn0, tracked, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)
-        seen = tracked & sky.above_mask & pose_valid[:, None]
+        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)
+        seen = usable & sky.above_mask & pose_valid[:, None]
     else:
         track_state = {}
         seen = sky.above_mask & (~sky.blocked | sky.nlos) & pose_valid[:, None]

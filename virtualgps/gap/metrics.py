@@ -634,6 +634,67 @@ def summary(
     out.update({f"cn0_{k}_dbhz": v for k, v in cs.items() if k != "n"})
     out["cn0_n"] = cs["n"]
     out.update(speed_summary(_opt(epochs, "speed_mps"), _opt(epochs, "course_deg"), fixed))
+    if prn is not None and el is not None and in_view is not None and in_view.ndim == 2:
+        gps = ((prn >= 1) & (prn <= 32))[None, :] & in_view & fixed[:, None]
+        if cn0 is not None and cn0.shape == in_view.shape:
+            out.update(elevation_bin_stats(el, cn0, gps))
+        az, used_sats = _opt(epochs, "az_deg"), _opt(epochs, "used")
+        if az is not None and used_sats is not None and used_sats.shape == in_view.shape:
+            out["vdop_used_median"] = float(np.nanmedian(used_set_vdop(el, az, used_sats & gps)))
+    return out
+
+
+# Elevation bins (degrees) of the per-bin C/N0 and tracking statistics: a patch antenna's
+# roll-off shows between them, and an obstructed site's losses by direction too.
+ELEVATION_BINS_DEG = ((5, 15), (15, 30), (30, 60), (60, 90))
+
+
+def elevation_bin_stats(el_deg: np.ndarray, cn0_dbhz: np.ndarray, listed: np.ndarray
+                        ) -> dict[str, float]:
+    """Per elevation bin: median C/N0 of the tracked satellites and the share tracked.
+
+    Parameters
+    ----------
+    el_deg, cn0_dbhz : (n_t, n_sat) GSV elevation (degrees) and SNR (dB-Hz, NaN: not tracked)
+    listed : (n_t, n_sat) bool, the satellite-epochs to count (GPS, in view, fixed epochs)
+
+    Returns
+    -------
+    stats : ``cn0_el{lo}_{hi}_median_dbhz`` and ``tracked_el{lo}_{hi}_share`` for each bin of
+        :data:`ELEVATION_BINS_DEG` (NaN where the bin holds no satellite-epoch)
+    """
+    out = {}
+    el = np.where(listed, el_deg, np.nan)
+    for lo, hi in ELEVATION_BINS_DEG:
+        inside = (el >= lo) & (el < hi) if hi < 90 else (el >= lo)
+        tracked = inside & np.isfinite(cn0_dbhz)
+        key = f"el{lo}_{hi}"
+        out[f"cn0_{key}_median_dbhz"] = (float(np.median(cn0_dbhz[tracked])) if tracked.any()
+                                         else math.nan)
+        out[f"tracked_{key}_share"] = (float(tracked.sum() / inside.sum()) if inside.any()
+                                       else math.nan)
+    return out
+
+
+def used_set_vdop(el_deg: np.ndarray, az_deg: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """VDOP of each epoch's used satellites from their GSV elevation and azimuth (unit weights,
+    4 states), the same for real and simulated logs whatever DOP the receiver prints.
+
+    el_deg, az_deg : (n_t, n_sat) degrees; used : (n_t, n_sat) bool (GSA)
+    Returns (n_t,) VDOP; NaN with fewer than 4 used satellites of known direction
+    """
+    ok = used & np.isfinite(el_deg) & np.isfinite(az_deg)
+    el, az = np.radians(np.where(ok, el_deg, 0.0)), np.radians(np.where(ok, az_deg, 0.0))
+    g = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el),
+                  np.ones_like(el)], axis=-1) * ok[..., None]
+    out = np.full(el.shape[0], math.nan)
+    four = ok.sum(axis=1) >= 4
+    if four.any():
+        gtg = np.einsum("tsi,tsj->tij", g[four], g[four])
+        cond_ok = np.linalg.cond(gtg) < 1e12
+        q = np.full(gtg.shape, math.nan)
+        q[cond_ok] = np.linalg.inv(gtg[cond_ok])
+        out[four] = np.sqrt(q[:, 2, 2])
     return out
 
 
