@@ -171,7 +171,11 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
         grid = tuple({"sky": {"elevation_mask_deg": v}} for v in (cur,) + vals)
         return Candidate(name, grid, ("elevation_mask_deg",))
     if name == "latency":
-        grid = _points(name, on, latency_s=(0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0))
+        # steps of 0.1-0.15 s below 1 s: a first-order filter of tau lags by
+        # exp(-dt/tau) / (1 - exp(-dt/tau)) epochs (0.58 s at tau 1 s, 1 Hz), and a latency
+        # between grid points lost to the filter's nearer lag (self-check: 0.58 and 0.69 s)
+        grid = _points(name, on, latency_s=(0.1, 0.25, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25,
+                                            1.5, 2.0, 3.0))
         return Candidate(name, grid, ("latency_s",), default=0)
     if name == "nav_filter":
         # 0.5 s steps where receivers' filters lie (and fine latencies): with coarser grids a
