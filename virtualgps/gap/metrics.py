@@ -640,7 +640,9 @@ def summary(
             out.update(elevation_bin_stats(el, cn0, gps))
         az, used_sats = _opt(epochs, "az_deg"), _opt(epochs, "used")
         if az is not None and used_sats is not None and used_sats.shape == in_view.shape:
-            out["vdop_used_median"] = float(np.nanmedian(used_set_vdop(el, az, used_sats & gps)))
+            vdop = used_set_vdop(el, az, used_sats & gps)
+            fin = np.isfinite(vdop)
+            out["vdop_used_median"] = float(np.median(vdop[fin])) if fin.any() else math.nan
     return out
 
 
