@@ -16,6 +16,7 @@ import os
 import select
 import socket
 import time
+from collections.abc import Callable
 from urllib.parse import urlsplit
 
 from virtualgps.exceptions import ConfigError, VirtualGPSError
@@ -145,6 +146,25 @@ def _resolve(host: str, port: int, kind: socket.SocketKind) -> tuple:
     return infos[0]
 
 
+def _listening_socket(scheme: str, host: str, port: int, kind: socket.SocketKind,
+                      configure: Callable[[socket.socket, tuple], None]) -> socket.socket:
+    """A non-blocking socket for ``host:port``, set up by ``configure(sock, address)`` (its
+    options, the bind and, for TCP, listen); one clear error, naming the ``--poses`` spec,
+    when that fails."""
+    family, kind, proto, _, addr = _resolve(host, port, kind)
+    sock = socket.socket(family, kind, proto)
+    try:
+        configure(sock, addr)
+        sock.setblocking(False)
+    except OSError as exc:
+        sock.close()
+        raise VirtualGPSError(
+            f"cannot listen on {scheme}://{host}:{port}: {exc.strerror or exc}; choose another "
+            f"address with --poses {scheme}://HOST:PORT"
+        ) from exc
+    return sock
+
+
 def _spec(scheme: str, address: tuple) -> str:
     host, port = address[0], address[1]
     return f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
@@ -172,20 +192,13 @@ class UdpPoseSource(PoseSource):
     """
 
     def __init__(self, host: str, port: int) -> None:
-        family, kind, proto, _, addr = _resolve(host, port, socket.SOCK_DGRAM)
-        self._sock = socket.socket(family, kind, proto)
-        try:
+        def configure(sock: socket.socket, addr: tuple) -> None:
             # A large buffer rides out bursts while the daemon computes an epoch.
             with contextlib.suppress(OSError):
-                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
-            self._sock.bind(addr)
-            self._sock.setblocking(False)
-        except OSError as exc:
-            self._sock.close()
-            raise VirtualGPSError(
-                f"cannot listen on udp://{host}:{port}: {exc.strerror or exc}; choose another "
-                f"address with --poses udp://HOST:PORT"
-            ) from exc
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _UDP_RCVBUF_BYTES)
+            sock.bind(addr)
+
+        self._sock = _listening_socket("udp", host, port, socket.SOCK_DGRAM, configure)
         self.address = self._sock.getsockname()
         self.received_messages = 0
         self.dropped_messages = 0
@@ -256,20 +269,13 @@ class TcpPoseSource(PoseSource):
     """
 
     def __init__(self, host: str, port: int) -> None:
-        family, kind, proto, _, addr = _resolve(host, port, socket.SOCK_STREAM)
-        self._listener = socket.socket(family, kind, proto)
-        try:
+        def configure(sock: socket.socket, addr: tuple) -> None:
             # A restart must not wait for the previous run's connections in TIME_WAIT.
-            self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self._listener.bind(addr)
-            self._listener.listen(16)
-            self._listener.setblocking(False)
-        except OSError as exc:
-            self._listener.close()
-            raise VirtualGPSError(
-                f"cannot listen on tcp://{host}:{port}: {exc.strerror or exc}; choose another "
-                f"address with --poses tcp://HOST:PORT"
-            ) from exc
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind(addr)
+            sock.listen(16)
+
+        self._listener = _listening_socket("tcp", host, port, socket.SOCK_STREAM, configure)
         self.address = self._listener.getsockname()
         self._epoll = select.epoll()
         self._epoll.register(self._listener.fileno(), select.EPOLLIN)
