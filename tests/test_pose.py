@@ -287,8 +287,8 @@ def test_uniform_jsonl_reads_as_line_by_line(tmp_path, geodetic, with_velocity):
     fast, slow = tmp_path / "fast.jsonl", tmp_path / "slow.jsonl"
     fast.write_text("".join(json.dumps(r) + "\n" for r in rows))
     slow.write_text("".join(json.dumps({**r, "note": "x"}) + "\n" for r in rows))
-    assert pose._jsonl_uniform(fast.read_text().splitlines()) is not None
-    assert pose._jsonl_uniform(slow.read_text().splitlines()) is None
+    assert pose._jsonl_uniform(list(enumerate(fast.read_text().splitlines(), 1))) is not None
+    assert pose._jsonl_uniform(list(enumerate(slow.read_text().splitlines(), 1))) is None
     a, b = pose.read_pose_log(fast), pose.read_pose_log(slow)
     assert a.frame == b.frame == ("geodetic" if geodetic else "enu")
     for x, y in ((a.t_unix_s, b.t_unix_s), (a.xyz, b.xyz), (a.vel_enu_mps, b.vel_enu_mps)):

@@ -79,9 +79,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--link",
-        default="./virtualgps0",
-        help="stable symlink to the pty slave (default ./virtualgps0)",
+        default="./virtualgps{id}",
+        help="stable symlink to each receiver's pty; {id} is the receiver's number "
+        "(default ./virtualgps{id}: ./virtualgps0 for one receiver)",
     )
+    run.add_argument("--receivers", type=int,
+                     help="run this many receivers, each on its own pty (ids 0..N-1, seed "
+                     "--seed + id); poses carry \"id\" (default 1)")
+    run.add_argument("--fleet", help="TOML file listing the receivers (profile, seed, link, "
+                     "baud, antenna offset of each; see the README)")
     run.add_argument("--serial", help="drive this real serial port instead of a pty")
     run.add_argument("--baud", type=int, help="baud rate (default: the profile's, 38400)")
     run.add_argument("--duration", type=float, help="stop after this many seconds")
@@ -208,68 +214,27 @@ def _status_text(fixes, stats, device) -> str:
     return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
 
 
+def _fleet_status(receivers, fixes_by_id: dict) -> str:
+    n_fix = sum(1 for f in fixes_by_id.values() if f.quality[0] > 0)
+    epochs = sum(r.stats.epochs for r in receivers)
+    dropped = sum(getattr(r.device, "dropped_epochs", 0) for r in receivers)
+    t = max((float(f.t_unix_s[0]) for f in fixes_by_id.values()), default=0.0)
+    extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
+    return (f"{time.strftime('%H:%M:%S', time.gmtime(t))}Z  {len(receivers)} receivers, "
+            f"{n_fix} with a fix  {epochs} epochs{extra}")
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    from virtualgps import config, daemon, nmea, pose, posesource, transport
+    from virtualgps import daemon
+    from virtualgps.fleet.run import build_fleet
 
-    cfg = config.resolve(_flags(args))
-    scene, georef, scene_tle = config.load_scene_for(cfg)
-    clock = daemon.SimClock(cfg.start_time_unix_s)
-    t0 = clock.now_unix_s()
-    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle, t0)
-    prof = cfg.profile
-    log.info(
-        "profile %s (%s), scene %s, TLE %s, seed %d, rate %g Hz, baud %d",
-        prof.name,
-        prof.source,
-        cfg.scene or config.DEFAULT_SCENE,
-        tle_path,
-        cfg.seed,
-        prof.rate_hz,
-        prof.baud,
-    )
-    fmt = nmea.NmeaFormat.from_dict(prof.nmea)
-
-    # Pose source.
-    spec = args.poses
-    is_log = spec != "demo" and not spec.startswith(("udp://", "tcp://")) and spec != "-"
-    if georef is None and is_log:
-        track = pose.read_pose_log(Path(spec), args.topic)
-        if track.frame != "geodetic":
-            config.require_georef(None, "geodetic poses")
-        georef = config.Georef(*(float(v) for v in track.xyz[0]))
-    elif georef is None:
-        # Open sky, live geodetic poses, no --origin. With exact WGS-84 geodesy the ENU frame's
-        # origin is arbitrary (the ECEF<->ENU round trip is exact), so any origin will do; the
-        # paper's flat earth needs a real one.
-        if prof.georef == "flat_earth":
-            config.require_georef(None, "a scene")
-        georef = config.Georef(0.0, 0.0, 0.0)
-    if spec == "demo":
-        waypoints = getattr(scene, "demo_waypoints_enu_m", None) if scene is not None else None
-        speed = getattr(scene, "demo_speed_mps", 1.4) if scene is not None else 1.4
-        if waypoints is None or len(waypoints) < 2:
-            # Open sky or a scene without [demo]: a 40 m square around the origin, antenna 1.5 m up.
-            waypoints = np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5], [0, 40, 1.5]], float)
-        lap = daemon.demo_lap(np.asarray(waypoints, float), float(speed))
-        provider = daemon.LoopProvider(lap, t0, prof.pose_timeout_s)
-    elif spec.startswith(("udp://", "tcp://")) or spec == "-":
-        provider = daemon.LiveProvider(
-            posesource.open_pose_source(spec), georef, clock, prof.pose_timeout_s
-        )
-    else:
-        from virtualgps.replay import track_in_scene
-
-        track = pose.read_pose_log(Path(spec), args.topic)
-        provider = daemon.TrackProvider(track_in_scene(track, georef), t0, prof.pose_timeout_s)
-
-    rx = config.make_receiver(cfg, scene, georef, ephemeris, t0)
-
-    if args.serial:
-        device = transport.SerialDevice(args.serial, args.baud or prof.baud)
-        print(f"device: {args.serial}", flush=True)
-    else:
-        device = transport.PtyDevice(Path(args.link), baud=prof.baud)
-        print(f"device: {device.slave_path} -> {args.link}", flush=True)
+    fleet = build_fleet(_flags(args), args.poses, args.link, args.receivers, args.fleet,
+                        args.serial, args.topic)
+    receivers = fleet.receivers
+    for r, link in zip(receivers, fleet.links, strict=True):
+        dev = r.device
+        print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
+              flush=True)
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -279,34 +244,48 @@ def cmd_run(args: argparse.Namespace) -> int:
         timer.daemon = True
         timer.start()
     status = StatusLine(sys.stdout)
+    last_fixes: dict[int, Any] = {}
+    shown = [0.0]
 
-    def on_epoch(fixes, stats) -> None:
-        status.show(_status_text(fixes, stats, device))
+    def on_epoch(r, fixes) -> None:
+        if not status.active:
+            return
+        if len(receivers) == 1:
+            status.show(_status_text(fixes, r.stats, r.device))
+            return
+        last_fixes[r.receiver_id] = fixes
+        now = time.monotonic()
+        if now - shown[0] >= 1.0:  # a fleet's line: once a second
+            shown[0] = now
+            status.show(_fleet_status(receivers, last_fixes))
 
     try:
-        stats = daemon.run_daemon(
-            rx, provider, device, fmt, clock, np.random.default_rng(cfg.seed), stop, on_epoch
-        )
+        daemon.run_receivers(receivers, fleet.provider, fleet.clock, stop, on_epoch,
+                             waiter=fleet.waiter)
     finally:
         status.end()
-        device.close()
-        provider.close()
-    if stats.link is not None and (stats.link.commands or stats.link.bad_checksum):
-        log.info(
-            "MTK command link: %d commands answered, %d with a wrong checksum ignored; "
-            "settings at exit: %s",
-            stats.link.commands,
-            stats.link.bad_checksum,
-            stats.link.settings,
-        )
+        fleet.close()
+    for r in receivers:
+        link = r.stats.link
+        if link is not None and (link.commands or link.bad_checksum):
+            log.info(
+                "receiver %d: MTK command link: %d commands answered, %d with a wrong checksum "
+                "ignored; settings at exit: %s",
+                r.receiver_id, link.commands, link.bad_checksum, link.settings,
+            )
+    provider = fleet.provider
     bad = getattr(provider, "bad", None)
+    unknown = getattr(provider, "unknown_ids", None)
+    s = [r.stats for r in receivers]
     log.info(
-        "stopped after %d epochs (%d with a fix, %d late, %d skipped)%s",
-        stats.epochs,
-        stats.fixes,
-        stats.late_epochs,
-        stats.skipped_epochs,
+        "stopped after %d epochs (%d with a fix, %d late, %d skipped)%s%s",
+        sum(x.epochs for x in s),
+        sum(x.fixes for x in s),
+        sum(x.late_epochs for x in s),
+        sum(x.skipped_epochs for x in s),
         f"; malformed pose messages: {dict(bad)}" if bad else "",
+        f"; pose messages for unknown receivers: {sum(unknown.values())} "
+        f"(ids {sorted(unknown)[:10]})" if unknown else "",
     )
     return 0
 

@@ -14,7 +14,7 @@ import select
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -22,7 +22,15 @@ import numpy as np
 
 from virtualgps import mtk, nmea, pose
 from virtualgps.exceptions import PoseError
-from virtualgps.receiver import Georef, Receiver, initial_state, restart, simulate
+from virtualgps.receiver import (
+    Georef,
+    Receiver,
+    Sky,
+    compute_sky,
+    initial_state,
+    restart,
+    simulate,
+)
 from virtualgps.records import Fixes
 
 log = logging.getLogger(__name__)
@@ -69,8 +77,11 @@ class PoseProvider(Protocol):
         """Read whatever has arrived (never blocks)."""
         ...
 
-    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(pos (n, 3) scene ENU m, vel (n, 3) ENU m/s, valid (n,) bool) at simulated times."""
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pos (n, 3) scene ENU m, vel (n, 3) ENU m/s, valid (n,) bool) of a receiver at
+        simulated times."""
         ...
 
     def close(self) -> None: ...
@@ -90,7 +101,9 @@ class TrackProvider:
     def pump(self) -> None:
         return None
 
-    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return pose.interpolate(self.track, np.asarray(t_unix_s) - self.shift_s, self.max_gap_s)
 
     def close(self) -> None:
@@ -130,26 +143,47 @@ class LoopProvider(TrackProvider):
         self.t0_unix_s = t0_unix_s
         self.lap_s = float(lap.t_unix_s[-1])
 
-    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         t_lap = (np.asarray(t_unix_s, dtype=float) - self.t0_unix_s) % self.lap_s
         return pose.interpolate(self.track, t_lap, self.max_gap_s)
 
 
 class LiveProvider:
-    """Poses from a message source (UDP, TCP, stdin): parsed, counted, kept for interpolation.
+    """Poses from a message source (UDP, TCP, stdin): parsed, counted, kept for interpolation,
+    one history per receiver (the message's ``"id"``, 0 where absent).
 
-    Malformed messages are counted per kind and logged once per kind; they never stop the daemon.
+    Malformed messages are counted per kind and logged once per kind; messages for a receiver
+    that does not exist are counted (``unknown_ids``) and logged once. Neither ever stops the
+    daemon.
+
+    Parameters
+    ----------
+    source : the message source (``poll``, ``fileno_list``, ``close``)
+    georef : the scene's georeference (geodetic poses -> scene ENU)
+    clock : the simulated clock (robot-clock times -> simulated times)
+    max_gap_s : the pose timeout
+    receiver_ids : the receivers that exist (default: receiver 0 alone)
     """
 
-    def __init__(self, source, georef: Georef, clock: SimClock, max_gap_s: float) -> None:
+    def __init__(self, source, georef: Georef, clock: SimClock, max_gap_s: float,
+                 receiver_ids: Iterable[int] = (0,)) -> None:
         self.source = source
         self.georef = georef
         self.clock = clock
         self.max_gap_s = max_gap_s
-        self.history: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=LIVE_POSE_HISTORY)
+        self.histories: dict[int, deque[tuple[float, np.ndarray, np.ndarray]]] = {
+            int(i): deque(maxlen=LIVE_POSE_HISTORY) for i in receiver_ids}
         self.bad: Counter[str] = Counter()
+        self.unknown_ids: Counter[int] = Counter()
         self.n_good = 0
-        self._track: pose.PoseTrack | None = None
+        self._tracks: dict[int, pose.PoseTrack] = {}
+
+    @property
+    def history(self) -> deque[tuple[float, np.ndarray, np.ndarray]]:
+        """Receiver 0's poses (simulated time, ENU m, ENU m/s), oldest first."""
+        return self.histories[min(self.histories)]
 
     def fileno_list(self) -> list[int]:
         return list(self.source.fileno_list())
@@ -171,6 +205,13 @@ class LiveProvider:
         for data, arrival_wall_s in messages:
             try:
                 p = pose.parse_pose_message(data, arrival_wall_s)
+                history = self.histories.get(p.receiver_id)
+                if history is None:
+                    if not self.unknown_ids:
+                        log.warning("skipping a pose message for receiver %d, which does not "
+                                    "exist (further ones are counted, not logged)", p.receiver_id)
+                    self.unknown_ids[p.receiver_id] += 1
+                    continue
                 enu = self._to_enu(p)
             except PoseError as exc:
                 if self.bad[exc.kind] == 0:
@@ -183,32 +224,69 @@ class LiveProvider:
                 self.bad[exc.kind] += 1
                 continue
             t_sim = p.t_unix_s + self.clock.offset_s
-            if self.history and t_sim <= self.history[-1][0]:
-                if t_sim == self.history[-1][0]:
+            if history and t_sim <= history[-1][0]:
+                if t_sim == history[-1][0]:
                     continue
                 # Out-of-order message: keep the history sorted (rare; UDP may reorder).
                 items = sorted(
-                    [*self.history, (t_sim, enu, np.asarray(p.vel_enu_mps, float))],
+                    [*history, (t_sim, enu, np.asarray(p.vel_enu_mps, float))],
                     key=lambda item: item[0],
                 )
-                self.history = deque(items, maxlen=LIVE_POSE_HISTORY)
+                history.clear()
+                history.extend(items[-LIVE_POSE_HISTORY:])
             else:
-                self.history.append((t_sim, enu, np.asarray(p.vel_enu_mps, float)))
+                history.append((t_sim, enu, np.asarray(p.vel_enu_mps, float)))
             self.n_good += 1
-            self._track = None
+            self._tracks.pop(p.receiver_id, None)
 
-    def pose_at(self, t_unix_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         t = np.asarray(t_unix_s, dtype=float)
-        if not self.history:
+        history = self.histories.get(receiver_id)
+        if not history:
             n = t.shape[0]
             return np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
-        if self._track is None:
-            ts, xyz, vel = zip(*self.history, strict=True)
-            self._track = pose.PoseTrack(np.array(ts), "enu", np.array(xyz), np.array(vel))
-        return pose.interpolate(self._track, t, self.max_gap_s)
+        track = self._tracks.get(receiver_id)
+        if track is None:
+            ts, xyz, vel = zip(*history, strict=True)
+            track = self._tracks[receiver_id] = pose.PoseTrack(
+                np.array(ts), "enu", np.array(xyz), np.array(vel))
+        return pose.interpolate(track, t, self.max_gap_s)
 
     def close(self) -> None:
         self.source.close()
+
+
+class ReceiverPoses:
+    """Each receiver's own provider (pose logs split by id, demo walks): ``pose_at`` by id.
+
+    Parameters
+    ----------
+    providers : {receiver id: provider}; a receiver without one has no pose (no fix)
+    """
+
+    def __init__(self, providers: dict[int, PoseProvider]) -> None:
+        self.providers = providers
+
+    def fileno_list(self) -> list[int]:
+        return []
+
+    def pump(self) -> None:
+        return None
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = self.providers.get(receiver_id)
+        if p is None:
+            n = np.asarray(t_unix_s).shape[0]
+            return np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        return p.pose_at(t_unix_s, receiver_id)
+
+    def close(self) -> None:
+        for p in self.providers.values():
+            p.close()
 
 
 @dataclass
@@ -288,6 +366,213 @@ def _format_for(
     )
 
 
+class LiveReceiver:
+    """One receiver of the live loop: its state and random streams, command link, rate, output
+    format and device.
+
+    With an MTK command link, ``$PMTK010,001`` goes out at once (before the first epoch); what
+    the client writes is answered by :meth:`service_client` between epochs (a reply is queued
+    whole, after any epoch already queued, so it never splits an epoch) and applied: restarts
+    (no fix until the start's TTFF), fix interval (epochs on multiples of the new interval),
+    baud (the device's pacing or port speed), sentence rates; SBAS and the static-navigation
+    threshold switch those effects. Without a link the client's bytes are read and discarded.
+
+    Parameters
+    ----------
+    rx : the receiver
+    device : output device (``write_epoch``, ``read_available``; optional ``fileno``,
+        ``set_baud``), never blocking
+    fmt : NMEA format
+    clock : the simulated clock
+    rng : this receiver's random generator
+    link : the command link; ``"profile"`` (default) makes the profile's (:func:`make_link`),
+        None for none
+    receiver_id : the receiver's number (the ``"id"`` of its pose messages)
+    antenna_offset_enu_m : (3,) metres, scene ENU, added to every pose (antenna lever arm)
+
+    Attributes
+    ----------
+    stats : DaemonStats, this receiver's counters
+    k : index of the next epoch at ``rate`` (the epoch is at ``k / rate`` simulated UTC)
+    """
+
+    def __init__(
+        self,
+        rx: Receiver,
+        device,
+        fmt: nmea.NmeaFormat,
+        clock: SimClock,
+        rng: np.random.Generator,
+        link: mtk.MtkLink | None | str = "profile",
+        receiver_id: int = 0,
+        antenna_offset_enu_m: np.ndarray | None = None,
+    ) -> None:
+        prof = rx.profile
+        if isinstance(link, str):
+            link = make_link(prof, fmt)
+        self.rx, self.prof, self.device, self.clock, self.rng = rx, prof, device, clock, rng
+        self.link = link
+        self.receiver_id = receiver_id
+        self.offset_enu_m = (np.zeros(3) if antenna_offset_enu_m is None
+                             else np.asarray(antenna_offset_enu_m, float).reshape(3))
+        self.base_fmt = fmt
+        self.out_fmt: nmea.NmeaFormat | None = fmt
+        self.rate = prof.rate_hz
+        self.stats = DaemonStats(link=link)
+        self.n_sat = len(rx.ephemeris.prn)
+        self.recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs
+        self.t_last: float | None = None
+        self.applied = link.settings if link is not None else None  # the settings in effect
+        self.k = self.next_k(self.rate)
+        # Power-on at the first epoch's time, as replay does: a run with --start-time starts
+        # the same whatever its set-up took (a fleet's receiver as the same receiver alone).
+        self.state = initial_state(prof, self.t_next_unix_s, rng, self.n_sat)
+        if link is not None:
+            device.write_epoch(link.startup().encode("ascii"))
+
+    def next_k(self, r: float) -> int:
+        """Index of the next epoch at rate ``r``: after the last one, not in the past."""
+        k_now = math.ceil(self.clock.now_unix_s() * r - 1e-9)
+        if self.t_last is None:
+            return k_now
+        return max(math.floor(self.t_last * r + 1e-6) + 1, k_now)
+
+    @property
+    def t_next_unix_s(self) -> float:
+        """Simulated UTC of the next epoch, seconds."""
+        return self.k / self.rate
+
+    def service_client(self) -> None:
+        """Read what the client wrote; with a link answer and apply it."""
+        data = self.device.read_available()
+        link, prof = self.link, self.prof
+        if link is None or self.applied is None or not data:
+            return
+        for resp in link.feed(data, max(self.recent_sizes, default=0)):
+            old = self.applied
+            if resp.replies:
+                self.device.write_epoch("".join(resp.replies).encode("ascii"))
+            if resp.restart is not None:
+                self.state = restart(self.state, resp.restart, self.clock.now_unix_s(), prof,
+                                     self.rng, self.n_sat)
+                log.info("client commanded a %s start", resp.restart)
+            new = self.applied = resp.settings
+            if new is old:
+                continue
+            if new.baud != old.baud:
+                set_baud = getattr(self.device, "set_baud", None)
+                if set_baud is not None:
+                    set_baud(new.baud)
+                log.info("client set the baud rate to %d", new.baud)
+            if new.fix_interval_ms != old.fix_interval_ms:
+                self.rate = (
+                    prof.rate_hz
+                    if new.fix_interval_ms == link.defaults.fix_interval_ms
+                    else new.rate_hz
+                )
+                self.k = self.next_k(self.rate)
+                log.info("client set the fix interval to %d ms", new.fix_interval_ms)
+            if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
+                self.out_fmt = _format_for(self.base_fmt, new, link.defaults, self.rate)
+            if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
+                self.rx = apply_link_settings(self.rx, new)
+                log.info("client set SBAS %s, static navigation %.2f m/s",
+                         "on" if new.sbas_active else "off", new.static_nav_mps)
+
+    def emit(
+        self, pos_enu_m: np.ndarray, vel_enu_mps: np.ndarray, valid: np.ndarray, sky: Sky
+    ) -> Fixes:
+        """Simulate the epoch at :attr:`t_next_unix_s`, queue its NMEA, move to the next one.
+
+        Parameters
+        ----------
+        pos_enu_m : (1, 3) metres, scene ENU, the antenna (offset applied)
+        vel_enu_mps : (1, 3) m/s
+        valid : (1,) bool, a recent pose exists
+        sky : the epoch's sky at ``pos_enu_m`` (:func:`epoch_skies`)
+
+        Returns
+        -------
+        fixes : Fixes of the one epoch
+        """
+        t_epoch = self.t_next_unix_s
+        fixes, self.state = simulate(self.rx, np.array([t_epoch]), pos_enu_m, vel_enu_mps,
+                                     valid, self.state, self.rng, sky=sky)
+        if self.out_fmt is not None:
+            data = nmea.epoch_sentences(fixes, 0, self.out_fmt)
+            self.device.write_epoch(data)
+            self.recent_sizes.append(len(data))
+        self.t_last = t_epoch
+        self.stats.epochs += 1
+        self.stats.fixes += int(fixes.quality[0] > 0)
+        self.k += 1
+        # Fell behind by more than one period (machine suspended, debugger): skip to now rather
+        # than emit a burst of old epochs.
+        k_now = math.floor(self.clock.now_unix_s() * self.rate)
+        if k_now > self.k:
+            self.stats.skipped_epochs += k_now - self.k
+            self.k = k_now
+        return fixes
+
+
+def epoch_skies(
+    members: list[LiveReceiver], provider: PoseProvider
+) -> list[tuple[LiveReceiver, np.ndarray, np.ndarray, np.ndarray, Sky]]:
+    """The poses and skies of receivers due together: one :func:`compute_sky` per receiver
+    configuration and epoch time, the receivers as its batch axis (SGP4 once, every ray of
+    every receiver in one Embree call).
+
+    Parameters
+    ----------
+    members : receivers whose next epoch is due
+    provider : the pose source (``pose_at(t, receiver_id)``)
+
+    Returns
+    -------
+    rows : (receiver, pos (1, 3) m, vel (1, 3) m/s, valid (1,), sky) for each receiver, in
+        the order given
+    """
+    groups: dict[tuple[int, float], list[int]] = {}
+    for i, m in enumerate(members):
+        groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(i)
+    out: list = [None] * len(members)
+    for (_, t_epoch), idx in groups.items():
+        t = np.array([t_epoch])
+        poses = [provider.pose_at(t, members[i].receiver_id) for i in idx]
+        valid = np.array([ok[0] for _, _, ok in poses])
+        pos = np.stack([p[0] + members[i].offset_enu_m for i, (p, _, _) in zip(idx, poses,
+                                                                               strict=True)])
+        ant = np.where(valid[:, None], pos, 0.0)
+        sky = compute_sky(members[idx[0]].rx, t, ant[:, None, :])
+        for b, i in enumerate(idx):
+            out[i] = (members[i], pos[b : b + 1], poses[b][1], valid[b : b + 1], sky.item(b))
+    return out
+
+
+class _SelectWaiter:
+    """Waits with ``select`` on the pose source and the devices' client-byte events (devices
+    with writer threads of their own: a single receiver's pty, a serial port)."""
+
+    def __init__(self, devices: list) -> None:
+        self.devices = devices
+
+    def wait(self, deadline_s: float, fds: list[int]) -> None:
+        fds = list(fds)
+        for dev in self.devices:
+            get_fd = getattr(dev, "fileno", None)
+            fd = get_fd() if get_fd is not None else None
+            if fd is not None:
+                fds.append(fd)
+        timeout = max(0.0, deadline_s - time.monotonic())
+        if fds:
+            select.select(fds, [], [], timeout)
+        else:
+            time.sleep(timeout)
+
+    def take_client_ready(self) -> list | None:
+        return None  # unknown: read every device
+
+
 def run_daemon(
     rx: Receiver,
     provider: PoseProvider,
@@ -300,15 +585,9 @@ def run_daemon(
     max_epochs: int | None = None,
     link: mtk.MtkLink | None | str = "profile",
 ) -> DaemonStats:
-    """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs).
-
-    With an MTK command link, ``$PMTK010,001`` goes out before the first epoch; what the client
-    writes is read as soon as it arrives (the device's descriptor is in the ``select``), answered
-    at once between epochs (a reply is queued whole, after any epoch already queued, so it never
-    splits an epoch), and applied: restarts (no fix until the start's TTFF), fix interval
-    (epochs on multiples of the new interval), baud (the device's pacing or port speed),
-    sentence rates. SBAS and the static-navigation threshold are kept in ``stats.link.settings``.
-    Without a link the client's bytes are read and discarded.
+    """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs): one
+    receiver, :func:`run_receivers` with one member (see :class:`LiveReceiver` for the
+    command link).
 
     Parameters
     ----------
@@ -329,109 +608,63 @@ def run_daemon(
     -------
     stats : DaemonStats
     """
-    prof = rx.profile
-    if isinstance(link, str):
-        link = make_link(prof, fmt)
-    base_fmt = fmt
-    rate = prof.rate_hz
-    stats = DaemonStats(link=link)
-    n_sat = len(rx.ephemeris.prn)
-    state = initial_state(prof, clock.now_unix_s(), rng, n_sat)
-    if link is not None:
-        device.write_epoch(link.startup().encode("ascii"))
-    get_fd = getattr(device, "fileno", None)
-    recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs (too-fast check)
-    out_fmt: nmea.NmeaFormat | None = fmt
-    t_last: float | None = None
-    applied = link.settings if link is not None else None  # the settings in effect
+    member = LiveReceiver(rx, device, fmt, clock, rng, link)
+    cb = None if on_epoch is None else (lambda m, fixes: on_epoch(fixes, m.stats))
+    run_receivers([member], provider, clock, stop, cb, max_epochs)
+    return member.stats
 
-    def next_k(r: float) -> int:
-        """Index of the next epoch at rate ``r``: after the last one, not in the past."""
-        k_now = math.ceil(clock.now_unix_s() * r - 1e-9)
-        if t_last is None:
-            return k_now
-        return max(math.floor(t_last * r + 1e-6) + 1, k_now)
 
-    def service_client() -> None:
-        """Read what the client wrote; with a link answer and apply it."""
-        nonlocal state, rate, out_fmt, k, applied, rx
-        data = device.read_available()
-        if link is None or applied is None or not data:
-            return
-        for resp in link.feed(data, max(recent_sizes, default=0)):
-            old = applied
-            if resp.replies:
-                device.write_epoch("".join(resp.replies).encode("ascii"))
-            if resp.restart is not None:
-                state = restart(state, resp.restart, clock.now_unix_s(), prof, rng, n_sat)
-                log.info("client commanded a %s start", resp.restart)
-            new = applied = resp.settings
-            if new is old:
-                continue
-            if new.baud != old.baud:
-                set_baud = getattr(device, "set_baud", None)
-                if set_baud is not None:
-                    set_baud(new.baud)
-                log.info("client set the baud rate to %d", new.baud)
-            if new.fix_interval_ms != old.fix_interval_ms:
-                rate = (
-                    prof.rate_hz
-                    if new.fix_interval_ms == link.defaults.fix_interval_ms
-                    else new.rate_hz
-                )
-                k = next_k(rate)
-                log.info("client set the fix interval to %d ms", new.fix_interval_ms)
-            if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
-                out_fmt = _format_for(base_fmt, new, link.defaults, rate)
-            if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
-                rx = apply_link_settings(rx, new)
-                log.info("client set SBAS %s, static navigation %.2f m/s",
-                         "on" if new.sbas_active else "off", new.static_nav_mps)
+def run_receivers(
+    members: list[LiveReceiver],
+    provider: PoseProvider,
+    clock: SimClock,
+    stop: threading.Event,
+    on_epoch: Callable[[LiveReceiver, Fixes], None] | None = None,
+    max_epochs: int | None = None,
+    waiter=None,
+) -> None:
+    """The live loop of one or many receivers: each emits its epochs on whole multiples of its
+    period; receivers due at once are simulated together (:func:`epoch_skies`).
 
-    k = next_k(rate)
+    Between epochs the loop reads poses and the clients' commands as they arrive.
+
+    Parameters
+    ----------
+    members : the receivers
+    provider : pose source, ``pose_at(t, receiver_id)``
+    clock : the simulated clock
+    stop : set by the signal handlers to end the loop
+    on_epoch : called after each receiver's epoch with the receiver and its Fixes
+    max_epochs : stop once every receiver has emitted this many epochs (tests)
+    waiter : what the loop waits in: ``wait(deadline_s, fds)`` and ``take_client_ready()``
+        (a :class:`virtualgps.fleet.ptyloop.PtyLoop` serving the devices; default: ``select``
+        on the pose source and the devices' own descriptors)
+    """
+    if waiter is None:
+        waiter = _SelectWaiter([m.device for m in members])
+    by_device = {id(m.device): m for m in members}
     while not stop.is_set():
-        # Wait for the epoch, reading poses and the client's commands as they come.
+        # Wait for the next epoch due, reading poses and the clients' commands as they come.
         while not stop.is_set():
             provider.pump()
-            service_client()
-            deadline = clock.monotonic_at(k / rate)  # k and rate may change in service_client
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            ready = waiter.take_client_ready()
+            for m in members if ready is None else [by_device[id(d)] for d in ready]:
+                m.service_client()  # (may change a receiver's rate and next epoch)
+            t_due = min(m.t_next_unix_s for m in members)
+            deadline = clock.monotonic_at(t_due)
+            if deadline <= time.monotonic():
                 break
-            timeout = min(remaining, 0.1)
-            fds = provider.fileno_list()  # stdin drops out at end of input
-            dev_fd = get_fd() if get_fd is not None else None
-            if dev_fd is not None:
-                fds = [*fds, dev_fd]
-            if fds:
-                select.select(fds, [], [], timeout)
-            else:
-                stop.wait(timeout)
+            waiter.wait(min(deadline, time.monotonic() + 0.1), provider.fileno_list())
         if stop.is_set():
             break
-        t_epoch = k / rate
         lateness = time.monotonic() - deadline
-        if lateness > 0.5 / rate:
-            stats.late_epochs += 1
-        stats.max_lateness_s = max(stats.max_lateness_s, lateness)
-        pos, vel, valid = provider.pose_at(np.array([t_epoch]))
-        fixes, state = simulate(rx, np.array([t_epoch]), pos, vel, valid, state, rng)
-        if out_fmt is not None:
-            data = nmea.epoch_sentences(fixes, 0, out_fmt)
-            device.write_epoch(data)
-            recent_sizes.append(len(data))
-        t_last = t_epoch
-        stats.epochs += 1
-        stats.fixes += int(fixes.quality[0] > 0)
-        if on_epoch is not None:
-            on_epoch(fixes, stats)
-        if max_epochs is not None and stats.epochs >= max_epochs:
+        due = [m for m in members if m.t_next_unix_s <= t_due + 1e-9]
+        for m, pos, vel, valid, sky in epoch_skies(due, provider):
+            if lateness > 0.5 / m.rate:
+                m.stats.late_epochs += 1
+            m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
+            fixes = m.emit(pos, vel, valid, sky)
+            if on_epoch is not None:
+                on_epoch(m, fixes)
+        if max_epochs is not None and all(m.stats.epochs >= max_epochs for m in members):
             break
-        k += 1
-        # Fell behind by more than one period (machine suspended, debugger): skip to now rather
-        # than emit a burst of old epochs.
-        k_now = math.floor(clock.now_unix_s() * rate)
-        if k_now > k:
-            stats.skipped_epochs += k_now - k
-            k = k_now
-    return stats

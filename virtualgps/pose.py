@@ -33,6 +33,7 @@ FRAME_GEODETIC = "geodetic"
 
 # A pose is ~100 bytes of JSON; anything far longer is not a pose (and bounds json's recursion).
 MAX_MESSAGE_BYTES = 4096
+MAX_RECEIVER_ID = 65535  # the "id" of a fleet's receiver (virtualgps run --receivers)
 # Plausibility bounds: beyond them a value is an error, not a pose.
 T_MAX_UNIX_S = 7.0e9  # year 2191
 ENU_MAX_M = 1.0e7  # a scene frame is local; 10,000 km is already meaningless
@@ -56,12 +57,15 @@ class Pose:
     frame : ``"enu"`` (scene ENU) or ``"geodetic"`` (WGS-84)
     xyz : (3,) tuple: x, y, z metres (ENU), or lat_deg, lon_deg, alt_hae_m (geodetic)
     vel_enu_mps : (3,) tuple, m/s, local East/North/Up; NaN components where not given
+    receiver_id : int, the receiver of a fleet the pose is for (the message's ``"id"``; 0
+        where absent)
     """
 
     t_unix_s: float
     frame: str
     xyz: tuple[float, float, float]
     vel_enu_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    receiver_id: int = 0
 
 
 @dataclass(frozen=True)
@@ -147,8 +151,13 @@ def pose_from_mapping(obj: Mapping[str, Any], arrival_unix_s: float) -> Pose:
     Raises
     ------
     PoseError
-        kinds ``no-position``, ``mixed-frames``, ``bad-number``, ``bad-time``, ``out-of-range``.
+        kinds ``no-position``, ``mixed-frames``, ``bad-number``, ``bad-time``, ``out-of-range``,
+        ``bad-id``.
     """
+    rid = obj.get("id", 0)
+    if type(rid) is not int or not 0 <= rid <= MAX_RECEIVER_ID:
+        raise PoseError("bad-id", f'"id" must be a receiver number 0..{MAX_RECEIVER_ID}, '
+                        f"not {_short(repr(rid))}")
     enu_keys = [k for k in ("x", "y", "z") if k in obj]
     geo_keys = [k for k in ("lat", "lon", "alt", "alt_msl") if k in obj]
     if enu_keys and geo_keys:
@@ -198,7 +207,8 @@ def pose_from_mapping(obj: Mapping[str, Any], arrival_unix_s: float) -> Pose:
         if abs(v) > SPEED_MAX_MPS:
             raise PoseError("out-of-range", f'"{k}" must be within +-{SPEED_MAX_MPS:.0f} m/s')
         vel.append(v)
-    return Pose(t_unix_s=t, frame=frame, xyz=xyz, vel_enu_mps=(vel[0], vel[1], vel[2]))
+    return Pose(t_unix_s=t, frame=frame, xyz=xyz, vel_enu_mps=(vel[0], vel[1], vel[2]),
+                receiver_id=rid)
 
 
 def parse_pose_message(data: bytes | str, arrival_unix_s: float) -> Pose:
@@ -527,7 +537,7 @@ def read_pose_log(path: str | Path, topic: str | None = None) -> PoseTrack:
         raise InputFileError(path, f"cannot read the pose log: {e.strerror}") from None
     kind = _detect_format(path, lines)
     if kind == "jsonl":
-        rows = _read_jsonl(path, lines)
+        rows = _read_jsonl(path, list(enumerate(lines, start=1)))
     elif kind == "csv":
         rows = _read_csv(path, lines)
     elif kind == "tum":
@@ -535,6 +545,56 @@ def read_pose_log(path: str | Path, topic: str | None = None) -> PoseTrack:
     else:
         rows = _read_nmea(path, lines)
     return _finish(path, *rows)
+
+
+def read_pose_logs_by_id(path: str | Path, topic: str | None = None) -> dict[int, PoseTrack]:
+    """Read a pose log of one receiver or of a fleet: one track per receiver id.
+
+    A JSONL log whose messages carry ``"id"`` (DESIGN section 4's message plus the receiver's
+    number, as ``virtualgps run --receivers`` reads them live) gives each id its own track;
+    lines without ``"id"`` are receiver 0's. Every other log is receiver 0's alone. Each
+    receiver's poses must be in time order on their own (the ids may interleave).
+
+    Parameters
+    ----------
+    path : the log file (or ROS 2 bag folder)
+    topic : the bag topic to read (bags only)
+
+    Returns
+    -------
+    tracks : {receiver id: PoseTrack}, ids in increasing order
+
+    Raises
+    ------
+    InputFileError
+        as :func:`read_pose_log`, naming the line.
+    """
+    path = Path(path)
+    from virtualgps import rosbag
+
+    if rosbag.is_bag(path) or topic is not None:
+        return {0: read_pose_log(path, topic)}
+    try:
+        lines = read_text_lines(path)
+    except OSError as e:
+        raise InputFileError(path, f"cannot read the pose log: {e.strerror}") from None
+    if _detect_format(path, lines) != "jsonl" or not any('"id"' in ln for ln in lines):
+        return {0: read_pose_log(path)}
+    groups: dict[int, list[tuple[int, str]]] = {}
+    for no, ln in enumerate(lines, start=1):
+        if not ln.strip():
+            continue
+        try:
+            obj = json.loads(ln)
+            rid = obj.get("id", 0) if isinstance(obj, dict) else 0
+        except (ValueError, RecursionError):
+            rid = 0  # (reported with its line by the reader of receiver 0's poses)
+        if type(rid) is not int:
+            rid = -1  # (reported the same way: not a receiver number)
+        groups.setdefault(rid, []).append((no, ln))
+    if -1 in groups:
+        _read_jsonl(path, groups[-1])  # raises, naming the first such line
+    return {rid: _finish(path, *_read_jsonl(path, rows)) for rid, rows in sorted(groups.items())}
 
 
 _Rows = tuple[np.ndarray, str, np.ndarray, np.ndarray, np.ndarray]  # t, frame, xyz, vel, line
@@ -548,12 +608,12 @@ _JSONL_LAYOUTS = {
 }
 
 
-def _jsonl_uniform(lines: list[str]) -> _Rows | None:
+def _jsonl_uniform(lines: list[tuple[int, str]]) -> _Rows | None:
     """A log whose every line is a JSON object with one plain layout (t and x, y, z or lat,
     lon, alt, optionally vx, vy, vz) of finite numbers in range, read at once; None for any
     other log, which the line-by-line reader then reads or reports (the same poses either
     way: the same checks, vectorised)."""
-    rows = [(no, ln) for no, ln in enumerate(lines, start=1) if ln.strip()]
+    rows = [(no, ln) for no, ln in lines if ln.strip()]
     try:
         objs = [json.loads(ln) for _, ln in rows]
     except (ValueError, RecursionError):
@@ -589,13 +649,15 @@ def _jsonl_uniform(lines: list[str]) -> _Rows | None:
     return t.copy(), frame, xyz.copy(), vel.copy(), np.array([no for no, _ in rows], np.int64)
 
 
-def _read_jsonl(path: Path, lines: list[str]) -> _Rows:
+def _read_jsonl(path: Path, lines: list[tuple[int, str]]) -> _Rows:
+    """The poses of numbered JSONL lines (line number, text), all of one receiver."""
     uniform = _jsonl_uniform(lines)
     if uniform is not None:
         return uniform
     t, xyz, vel, line_no = [], [], [], []
     frame = None
-    for no, ln in enumerate(lines, start=1):
+    rid = None
+    for no, ln in lines:
         if not ln.strip():
             continue
         try:
@@ -604,6 +666,13 @@ def _read_jsonl(path: Path, lines: list[str]) -> _Rows:
             raise InputFileError(
                 path, f"{e}; expected one JSON pose per line, e.g. {_JSONL_EXAMPLE}", no
             ) from None
+        if rid is None:
+            rid = p.receiver_id
+        elif p.receiver_id != rid:
+            raise InputFileError(
+                path, f"poses of receivers {rid} and {p.receiver_id} in one log: replay and gap "
+                "read one receiver's poses (virtualgps run --receivers reads them all)", no
+            )
         if frame is None:
             frame = p.frame
         elif p.frame != frame:

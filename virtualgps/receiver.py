@@ -16,7 +16,7 @@ DESIGN section 6 are switched on and set by the profile.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Protocol
 
 import numpy as np
@@ -266,6 +266,20 @@ class Sky:
     nlos_loss_db: np.ndarray
     foliage_db: np.ndarray
     wall_dist_m: np.ndarray
+
+    def item(self, i: int) -> Sky:
+        """The sky of one antenna of a batch: every array indexed by ``i`` on its first axis.
+
+        Parameters
+        ----------
+        i : index into the leading batch axis (a sky computed for antennas of shape
+            ``(n_rx, n_t, 3)`` gives the ``(n_t, ...)`` sky of receiver ``i``)
+
+        Returns
+        -------
+        sky : Sky, views of this one's arrays
+        """
+        return Sky(*(getattr(self, f.name)[i] for f in fields(self)))
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:

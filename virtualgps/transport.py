@@ -32,6 +32,7 @@ import threading
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -371,6 +372,13 @@ class PtyDevice(OutputDevice):
         Line rate in bits per second, a standard termios rate (default 38400, the Holux M-1000).
     max_backlog_s : float
         Most output, in seconds of line time, that may wait for a client.
+    chunk_s : float
+        Line time handed to the kernel per wake-up (default 16 ms, a USB serial adapter's
+        latency timer; at most 1 KiB).
+    threaded : bool
+        Run the writer in a thread of its own (default). False: the owner calls :meth:`step`
+        when it is due, as :class:`virtualgps.fleet.ptyloop.PtyLoop` does for many devices
+        from one thread.
 
     Attributes
     ----------
@@ -388,6 +396,9 @@ class PtyDevice(OutputDevice):
         Client bytes discarded because read_available was not called for too long.
     alive : bool
         The writer thread runs while this is True.
+    watch_master : bool
+        Whether the master's events (client bytes, a hang-up) should wake the writer now (set by
+        :meth:`step`; False while no reader is attached, when POLLHUP would wake it at once).
 
     Raises
     ------
@@ -397,15 +408,19 @@ class PtyDevice(OutputDevice):
         If ``link_path`` exists and is not a symlink, or the pty cannot be made.
     """
 
-    def __init__(self, link_path: Path | None, baud: int = 38400, max_backlog_s: float = 2.0):
+    def __init__(self, link_path: Path | None, baud: int = 38400, max_backlog_s: float = 2.0,
+                 chunk_s: float = _CHUNK_S, threaded: bool = True):
         speed = _termios_speed(baud)
         if not max_backlog_s > 0:
             raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
+        if not 0 < chunk_s <= 1.0:
+            raise ConfigError(f"chunk_s must be seconds in (0, 1], not {chunk_s!r}")
+        self._chunk_s = float(chunk_s)
         self.baud = baud
         self.max_backlog_s = float(max_backlog_s)
         self._bytes_per_s = baud / 10.0  # 8N1: start + 8 data + stop bits per byte
         self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
-        self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * _CHUNK_S)))
+        self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
         self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
         self._lock = threading.Lock()
         # Both the writer thread and read_available() drain the master; one at a time, so the
@@ -431,6 +446,10 @@ class PtyDevice(OutputDevice):
         # (At most _KERNEL_CAP_BYTES are unread, a few dozen epochs: older entries are moot.)
         self._in_kernel: deque[tuple[int, _Epoch]] = deque(maxlen=256)
         self._peer_error_logged = False
+        self.watch_master = False
+        self._next_send_s = time.monotonic()
+        # Called by write_epoch and set_baud instead of the eventfd when an owner drives step().
+        self.on_wake: Callable[[PtyDevice], None] | None = None
 
         master_fd, slave_fd = os.openpty()
         try:
@@ -459,10 +478,12 @@ class PtyDevice(OutputDevice):
         # Turns readable when client bytes wait in _rx (for the daemon's select).
         self._rx_event = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self.alive = True
-        self._thread = threading.Thread(
-            target=self._run, name=f"virtualgps-pty-{self.slave_path.name}", daemon=True
-        )
-        self._thread.start()
+        self._thread: threading.Thread | None = None
+        if threaded:
+            self._thread = threading.Thread(
+                target=self._run, name=f"virtualgps-pty-{self.slave_path.name}", daemon=True
+            )
+            self._thread.start()
 
     # -- interface ------------------------------------------------------------------------
 
@@ -513,7 +534,7 @@ class PtyDevice(OutputDevice):
             now_s = time.monotonic()
             self._queue.put(bytes(data), now_s)
             self._queue.trim(now_s, self._kernel_unread)
-        self._signal(self._wake)
+        self._wake_writer()
 
     def read_available(self) -> bytes:
         """Return the bytes the client wrote to the slave since the last call (``b""`` if none).
@@ -559,7 +580,8 @@ class PtyDevice(OutputDevice):
             self.baud = baud
             self._bytes_per_s = baud / 10.0
             self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
-            self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * _CHUNK_S)))
+            self._chunk_bytes = int(
+                min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
             self._queue.max_bytes = self.max_backlog_bytes
         speed = getattr(termios, f"B{baud}", None)
         if speed is not None and not self._closed:
@@ -569,7 +591,7 @@ class PtyDevice(OutputDevice):
                 termios.tcsetattr(self._master, termios.TCSANOW, attrs)
             except (OSError, termios.error) as exc:
                 log.debug("cannot set the speed of %s: %s", self.slave_path, exc)
-        self._signal(self._wake)
+        self._wake_writer()
 
     def termios_baud(self) -> int | None:
         """Return the speed currently set on the slave (a client may change it), in baud.
@@ -590,7 +612,8 @@ class PtyDevice(OutputDevice):
         self._closed = True
         self.alive = False
         self._signal(self._wake)
-        self._thread.join(timeout=5.0)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
         for fd in (self._master, self._wake, self._rx_event):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -602,12 +625,55 @@ class PtyDevice(OutputDevice):
             except OSError:
                 pass
 
-    # -- writer thread --------------------------------------------------------------------
+    @property
+    def master_fd(self) -> int:
+        """Return the pty's master descriptor (to watch while :attr:`watch_master`)."""
+        return self._master
+
+    @property
+    def client_bytes_waiting(self) -> bool:
+        """Return whether client bytes wait for :meth:`read_available`."""
+        return bool(self._rx)
+
+    # -- writer -----------------------------------------------------------------------------
 
     @staticmethod
     def _signal(event_fd: int) -> None:
         with contextlib.suppress(OSError):
             os.eventfd_write(event_fd, 1)
+
+    def _wake_writer(self) -> None:
+        if self.on_wake is not None:
+            self.on_wake(self)
+        else:
+            self._signal(self._wake)
+
+    def step(self) -> float:
+        """Do what the writer has due now: take the client's bytes, notice a reader arriving or
+        leaving, write the next slice of output.
+
+        Returns
+        -------
+        float
+            Seconds until the writer needs to run again, unless an event comes first: a new
+            epoch (:attr:`on_wake`), or the master's events while :attr:`watch_master`.
+        """
+        now_s = time.monotonic()
+        self._read_client()
+        if self._reader_absent():
+            if self.reader_attached:
+                self._on_detach()
+            with self._lock:
+                self._queue.trim(now_s, 0)
+                self._kernel_unread = 0
+            self.watch_master = False  # POLLHUP would wake poll() at once: do not watch
+            return _IDLE_POLL_S
+        if not self.reader_attached:
+            self._on_attach()
+            self._next_send_s = now_s
+        timeout_s, self._next_send_s = self._service(now_s, self._next_send_s)
+        self.watch_master = True  # wake for client bytes (gpsd's probes) and hang-ups
+        return timeout_s
 
     def _reader_absent(self) -> bool:
         """Return True while no process has the slave open (POLLHUP on the master)."""
@@ -764,13 +830,13 @@ class PtyDevice(OutputDevice):
                 # going stale; otherwise only a new epoch (the wake event), client bytes or
                 # a hang-up (the master's POLLIN/POLLHUP) can need us.
                 return (_IDLE_POLL_S if in_kernel else _IDLE_ATTACHED_S), next_send_s
-            if next_send_s < now_s - _CHUNK_S:
+            if next_send_s < now_s - self._chunk_s:
                 next_send_s = now_s  # idle or badly late: restart the line clock, no burst
             if next_send_s > now_s:
                 return next_send_s - now_s, next_send_s
             room = _KERNEL_CAP_BYTES - in_kernel
             if room <= 0:
-                return _CHUNK_S, next_send_s  # the client is not reading; look again soon
+                return self._chunk_s, next_send_s  # the client is not reading; look again soon
             head = self._queue.epochs[0]
             start = self._sent_total if head.offset == 0 else -1
             chunk = self._queue.peek(min(self._chunk_bytes, room))
@@ -782,7 +848,7 @@ class PtyDevice(OutputDevice):
                 log.debug("write to %s failed: %s", self.slave_path, exc)
                 n_sent = 0
             if n_sent <= 0:
-                return _CHUNK_S, next_send_s
+                return self._chunk_s, next_send_s
             self._queue.advance(n_sent)
             self.written_bytes += n_sent
             self._kernel_unread = in_kernel + n_sent
@@ -798,31 +864,15 @@ class PtyDevice(OutputDevice):
         poller = select.poll()
         poller.register(self._wake, select.POLLIN)
         watching_master = False
-        next_send_s = time.monotonic()
         try:
             while self.alive:
-                now_s = time.monotonic()
-                self._read_client()
-                if self._reader_absent():
-                    if self.reader_attached:
-                        self._on_detach()
-                    with self._lock:
-                        self._queue.trim(now_s, 0)
-                        self._kernel_unread = 0
-                    timeout_s = _IDLE_POLL_S
-                    want_master = False  # POLLHUP would wake poll() at once: do not watch
-                else:
-                    if not self.reader_attached:
-                        self._on_attach()
-                        next_send_s = now_s
-                    timeout_s, next_send_s = self._service(now_s, next_send_s)
-                    want_master = True  # wake for client bytes (gpsd's probes) and hang-ups
-                if want_master != watching_master:
-                    if want_master:
+                timeout_s = self.step()
+                if self.watch_master != watching_master:
+                    if self.watch_master:
                         poller.register(self._master, select.POLLIN)
                     else:
                         poller.unregister(self._master)
-                    watching_master = want_master
+                    watching_master = self.watch_master
                 for fd, _ in poller.poll(timeout_s * 1000.0):
                     if fd == self._wake:
                         with contextlib.suppress(BlockingIOError):
