@@ -389,6 +389,8 @@ class LiveReceiver:
         None for none
     receiver_id : the receiver's number (the ``"id"`` of its pose messages)
     antenna_offset_enu_m : (3,) metres, scene ENU, added to every pose (antenna lever arm)
+    t_first_unix_s : simulated UTC from which the first epoch is the next on the grid (default:
+        now; a fleet gives all its receivers one)
 
     Attributes
     ----------
@@ -406,6 +408,7 @@ class LiveReceiver:
         link: mtk.MtkLink | None | str = "profile",
         receiver_id: int = 0,
         antenna_offset_enu_m: np.ndarray | None = None,
+        t_first_unix_s: float | None = None,
     ) -> None:
         prof = rx.profile
         if isinstance(link, str):
@@ -423,7 +426,8 @@ class LiveReceiver:
         self.recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs
         self.t_last: float | None = None
         self.applied = link.settings if link is not None else None  # the settings in effect
-        self.k = self.next_k(self.rate)
+        t_from = clock.now_unix_s() if t_first_unix_s is None else t_first_unix_s
+        self.k = math.ceil(t_from * self.rate - 1e-9)
         # Power-on at the first epoch's time, as replay does: a run with --start-time starts
         # the same whatever its set-up took (a fleet's receiver as the same receiver alone).
         self.state = initial_state(prof, self.t_next_unix_s, rng, self.n_sat)

@@ -127,11 +127,9 @@ def build_fleet(
             cfgs[key] = cfg if key == (None, None) else config.resolve(
                 {**flags, "profile": m.profile or flags.get("profile"),
                  "baud": m.baud or flags.get("baud")})
-    clock = daemon.SimClock(t_start)  # (after the slow loading: the run starts now)
-    t0 = clock.now_unix_s()
-    rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t0) for key, c in cfgs.items()}
-
-    provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock, t0)
+    t_guess = daemon.SimClock(t_start).now_unix_s()  # (for the sky-time policy)
+    rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t_guess)
+           for key, c in cfgs.items()}
     unknown = sorted(set(tracks or ()) - set(ids))
     if unknown:
         log.warning("%s has poses for receivers %s, which this run does not have: ignored",
@@ -139,28 +137,36 @@ def build_fleet(
 
     devices: list = []
     waiter = None if serial_port else PtyLoop()
+    provider = None
     receivers = []
     try:
         for m in members:
-            c = cfgs[(m.profile, m.baud)]
-            p = c.profile
+            p = cfgs[(m.profile, m.baud)].profile
             if serial_port:
-                dev = transport.SerialDevice(serial_port, m.baud or flags.get("baud") or p.baud)
-                devices.append(dev)
+                devices.append(transport.SerialDevice(serial_port,
+                                                      m.baud or flags.get("baud") or p.baud))
             else:
                 pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
-                dev = transport.PtyDevice(Path(m.link), baud=p.baud, threaded=False, **pacing)
-                waiter.add(dev)
+                waiter.add(transport.PtyDevice(Path(m.link), baud=p.baud, threaded=False,
+                                               **pacing))
+        # The simulated clock starts once everything is loaded and made: with --start-time,
+        # the first epoch is the first on the grid after it, however long the set-up took.
+        clock = daemon.SimClock(t_start)
+        t0 = clock.now_unix_s()
+        provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock, t0)
+        for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
+            p = cfgs[(m.profile, m.baud)].profile
             receivers.append(daemon.LiveReceiver(
                 rxs[(m.profile, m.baud)], dev, nmea.NmeaFormat.from_dict(p.nmea), clock,
                 np.random.default_rng(m.seed), receiver_id=m.receiver_id,
-                antenna_offset_enu_m=np.array(m.antenna_offset_enu_m)))
+                antenna_offset_enu_m=np.array(m.antenna_offset_enu_m), t_first_unix_s=t0))
     except BaseException:
         if waiter is not None:
             waiter.close()
         for dev in devices:
             dev.close()
-        provider.close()
+        if provider is not None:
+            provider.close()
         raise
     links = [None if serial_port else m.link for m in members]
     return Fleet(receivers, provider, waiter, devices, clock, str(tle_path), links)

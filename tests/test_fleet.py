@@ -1,0 +1,350 @@
+"""A fleet of receivers in one daemon: who is in it, each receiver's bytes equal to the same
+receiver run alone, devices that stall or reconnect while the others keep time, a flood of bad
+and unknown-id pose messages, and SIGTERM removing every link."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from virtualgps import daemon, nmea, posesource
+from virtualgps.config import BUNDLED_SCENES_DIR, load_scene_for, make_receiver, resolve
+from virtualgps.ephemeris import load_tle
+from virtualgps.exceptions import ConfigError
+from virtualgps.fleet.members import fleet_members
+
+START = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the bundled TLE set
+START_ISO = "2017-03-28T14:52:48Z"
+
+
+# --- who is in the fleet ------------------------------------------------------------------
+
+
+def test_receivers_n_get_ids_seeds_and_links_from_the_pattern():
+    ms = fleet_members(3, None, 10, "/tmp/gps{id}")
+    assert [m.receiver_id for m in ms] == [0, 1, 2]
+    assert [m.seed for m in ms] == [10, 11, 12]
+    assert [m.link for m in ms] == ["/tmp/gps0", "/tmp/gps1", "/tmp/gps2"]
+    one = fleet_members(None, None, 5, "./virtualgps{id}")
+    assert [(m.receiver_id, m.seed, m.link) for m in one] == [(0, 5, "./virtualgps0")]
+
+
+def test_fleet_file_sets_each_receiver(tmp_path):
+    f = tmp_path / "fleet.toml"
+    f.write_text(
+        '[defaults]\nbaud = 115200\n\n[[receiver]]\n\n[[receiver]]\nid = 7\nprofile = "usarsim"'
+        '\nseed = 42\nlink = "/tmp/rover"\nantenna_offset_m = [0.5, 0, 1.25]\n'
+    )
+    a, b = fleet_members(None, str(f), 3, "gps{id}")
+    assert (a.receiver_id, a.seed, a.link, a.baud, a.profile) == (0, 3, "gps0", 115200, None)
+    assert (b.receiver_id, b.seed, b.link, b.profile) == (7, 42, "/tmp/rover", "usarsim")
+    assert b.antenna_offset_enu_m == (0.5, 0.0, 1.25) and b.baud == 115200
+
+
+@pytest.mark.parametrize(
+    "text, n, pattern, message",
+    [
+        ("[[receiver]]\nid = 1\n[[receiver]]\nid = 1\n", None, "g{id}", "id 1 appears twice"),
+        ("[[receiver]]\nspeed = 3\n", None, "g{id}", "unknown key 'speed'"),
+        ("[[receiver]]\nid = -2\n", None, "g{id}", "id must be an integer"),
+        ("[[receiver]]\nseed = 1.5\n", None, "g{id}", "seed must be"),
+        ("[[receiver]]\nantenna_offset_m = [1, 2]\n", None, "g{id}", "antenna_offset_m"),
+        ("[[receiver]]\n[[receiver]]\n", 3, "g{id}", "--receivers 3 but"),
+        ("[[receiver]]\n[[receiver]]\n", None, "gps", "put {id} in it"),
+        ("[defaults]\nseed = 3\n[[receiver]]\n", None, "g{id}", "[defaults] may set"),
+        ("title = 'x'\n", None, "g{id}", "unknown table or key 'title'"),
+        ("", None, "g{id}", "no [[receiver]] entries"),
+    ],
+)
+def test_fleet_file_errors_name_the_problem(tmp_path, text, n, pattern, message):
+    f = tmp_path / "fleet.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        fleet_members(n, str(f), 0, pattern)
+
+
+def test_receivers_count_is_checked():
+    with pytest.raises(ConfigError, match="--receivers must be"):
+        fleet_members(0, None, 0, "g{id}")
+
+
+# --- the vectorised tick: a receiver of a fleet is the same receiver alone -----------------
+
+
+class Sink:
+    def __init__(self) -> None:
+        self.data = bytearray()
+
+    def write_epoch(self, data: bytes) -> None:
+        self.data += data
+
+    def read_available(self) -> bytes:
+        return b""
+
+
+def walk(rid: int) -> daemon.TrackProvider:
+    """A different straight walk through the campus for each receiver, from START."""
+    from virtualgps.pose import PoseTrack
+
+    t = START + np.arange(0.0, 60.0, 0.5)
+    start = np.array([[-40.0 + 25.0 * rid, -30.0 + 10.0 * rid, 1.5]])
+    xyz = start + np.outer(t - START, [1.2, 0.9 - 0.4 * rid, 0.0])
+    return daemon.TrackProvider(PoseTrack(t, "enu", xyz, np.full_like(xyz, np.nan)), START, 2.0)
+
+
+@pytest.fixture(scope="module")
+def campus():
+    cfg = resolve({"rate": 10.0})
+    scene, georef, _ = load_scene_for(cfg)
+    eph = load_tle(BUNDLED_SCENES_DIR.parent / "ephemeris" / "gps-ops-2017-03-28.tle")
+    return cfg, scene, georef, eph
+
+
+class FlatOut(daemon.SimClock):
+    """A clock for which every epoch is due at once: the loop runs flat out, never skipping."""
+
+    def now_unix_s(self) -> float:
+        return START
+
+    def monotonic_at(self, t_unix_s: float) -> float:
+        return 0.0
+
+
+def run_members(campus, specs, n_epochs):
+    """run_receivers over receivers given as (id, seed, profile overrides); their bytes."""
+    cfg, scene, georef, eph = campus
+    rxs, members = {}, []
+    clock = FlatOut(START)
+    for rid, seed, over in specs:
+        key = json.dumps(over, sort_keys=True)
+        if key not in rxs:  # receivers alike share one Receiver, as the CLI's fleet does
+            from virtualgps.profiles import load_profile
+
+            prof = load_profile(cfg.profile.name, over, flag_overrides={"rate_hz": 10.0})
+            rxs[key] = make_receiver(replace(cfg, profile=prof), scene, georef, eph, START)
+        rx = rxs[key]
+        members.append(daemon.LiveReceiver(
+            rx, Sink(), nmea.NmeaFormat.from_dict(rx.profile.nmea), clock,
+            np.random.default_rng(seed), receiver_id=rid, t_first_unix_s=START))
+    provider = daemon.ReceiverPoses({rid: walk(rid) for rid, _, _ in specs})
+    daemon.run_receivers(members, provider, clock, threading.Event(), max_epochs=n_epochs)
+    return {m.receiver_id: bytes(m.device.data) for m in members}
+
+
+def test_each_receiver_of_a_fleet_emits_what_it_emits_alone(campus):
+    # Every effect of holux-m1000 on (nlos with scattering, foliage, cold start...), plus a
+    # receiver with another profile (simulated in a group of its own).
+    other = {"correlated_error": {"enabled": False}, "nlos": {"scattering": False}}
+    specs = [(0, 11, {}), (1, 12, {}), (2, 13, other), (5, 14, {})]
+    fleet = run_members(campus, specs, 400)
+    for spec in specs:
+        alone = run_members(campus, [spec], 400)
+        assert alone[spec[0]] == fleet[spec[0]], f"receiver {spec[0]} differs"
+    # ... and the receivers are not all the same (different walks, seeds and profiles).
+    assert len({fleet[r] for r, _, _ in specs}) == len(specs)
+    for rid, _, _ in specs:  # 40 s from power-on: fixes (and no fix before the first)
+        ggas = [ln for ln in fleet[rid].split(b"\r\n") if ln.startswith(b"$GPGGA")]
+        assert len(ggas) == 400 and ggas[-1].split(b",")[6] == b"1"
+
+
+# --- the pose source: ids, a flood of bad messages -------------------------------------------
+
+
+def test_flood_of_bad_and_unknown_id_messages_is_counted_and_poses_still_arrive(campus):
+    cfg, _, georef, _ = campus
+    src = posesource.open_pose_source("udp://127.0.0.1:0")
+    port = src.address[1]
+    clock = daemon.SimClock(START)
+    provider = daemon.LiveProvider(src, georef, clock, 2.0, receiver_ids=[0, 1, 2])
+    bad = [b"{not json", b'{"x": 1}', b'{"id": 9, "x": 0, "y": 0, "z": 1}',
+           b'{"id": "a", "x": 0, "y": 0, "z": 1}', b"\xff\xfe", b'{"id": -1, "x": 0}']
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+            for i in range(10_000):
+                s.sendto(bad[i % len(bad)], ("127.0.0.1", port))
+                if i % 100 == 0:
+                    provider.pump()  # (keep the socket's buffer from overflowing)
+                if i % 500 == 0:
+                    for rid in (1, 2):
+                        msg = {"id": rid, "t": time.time(), "x": float(rid), "y": 0.0, "z": 1.5}
+                        s.sendto(json.dumps(msg).encode(), ("127.0.0.1", port))
+            time.sleep(0.2)
+        for _ in range(50):
+            provider.pump()
+        counted = sum(provider.bad.values()) + sum(provider.unknown_ids.values())
+        assert counted == 10_000
+        assert provider.unknown_ids == {9: len(range(2, 10_000, len(bad)))}
+        assert set(provider.bad) == {"not-json", "no-position", "bad-id"}
+        assert provider.n_good == 2 * 20 and len(provider.histories[0]) == 0
+        pos, _, ok = provider.pose_at(np.array([provider.histories[2][-1][0]]), 2)
+        assert ok[0] and pos[0, 0] == 2.0
+    finally:
+        provider.close()
+
+
+# --- the daemon as users run it ----------------------------------------------------------------
+
+
+def start_fleet(tmp_path: Path, *args: str, n_lines: int) -> tuple[subprocess.Popen, list[str]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "virtualgps", "run", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    lines = [proc.stdout.readline() for _ in range(n_lines)]
+    if not all(ln.startswith("device: ") for ln in lines):
+        proc.kill()
+        raise AssertionError(f"device lines {lines!r}; stderr: {proc.communicate()[1]}")
+    return proc, [ln.split()[3] for ln in lines]
+
+
+def stop(proc: subprocess.Popen) -> tuple[int, str]:
+    proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    return proc.returncode, err
+
+
+class Reader(threading.Thread):
+    """Reads a device as it comes, noting when each GGA line arrived."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(daemon=True)
+        self.fd = os.open(path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+        self.data = bytearray()
+        self.arrivals: list[tuple[float, bytes]] = []
+        self.alive = True
+
+    def run(self) -> None:
+        while self.alive:
+            r, _, _ = select.select([self.fd], [], [], 0.05)
+            if not r:
+                continue
+            try:
+                chunk = os.read(self.fd, 65536)
+            except OSError:
+                break
+            now = time.time()
+            start = len(self.data)
+            self.data += chunk
+            i = self.data.find(b"$GPGGA", max(0, start - 6))
+            while i >= 0:
+                self.arrivals.append((now, bytes(self.data[i + 7:i + 17])))
+                i = self.data.find(b"$GPGGA", i + 1)
+
+    def close(self) -> bytes:
+        self.alive = False
+        self.join(5)
+        os.close(self.fd)
+        return bytes(self.data)
+
+
+def epochs_by_time(data: bytes) -> dict[bytes, bytes]:
+    """Each epoch's bytes (GGA to the next GGA), keyed by its GGA time field."""
+    parts = data.split(b"$GPGGA,")[1:]
+    whole = parts[:-1]  # (the last may be cut off)
+    return {p[:10]: b"$GPGGA," + p for p in whole}
+
+
+@pytest.mark.e2e
+def test_fleet_devices_match_single_runs_and_sigterm_removes_links(tmp_path):
+    # Three receivers walking apart (one JSONL log with ids), receiver 2 with a profile and a
+    # seed of its own from the fleet file; each compared with the same receiver run alone.
+    rows = []
+    for rid in range(3):
+        for k in range(0, 200):
+            t = START + 0.25 * k
+            rows.append({"id": rid, "t": t, "x": -30.0 + 20 * rid + 0.3 * k, "y": 5.0 * rid,
+                         "z": 1.5})
+    rows.sort(key=lambda r: (r["t"], r["id"]))
+    log = tmp_path / "fleet.jsonl"
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    fleet_file = tmp_path / "fleet.toml"
+    fleet_file.write_text('[[receiver]]\n[[receiver]]\n[[receiver]]\nprofile = "usarsim"\n'
+                          "seed = 99\n")
+    common = ["--start-time", START_ISO, "--rate", "10", "--seed", "4"]
+    proc, links = start_fleet(tmp_path, "--fleet", str(fleet_file), "--poses", str(log),
+                              "--link", str(tmp_path / "gps{id}"), *common, n_lines=3)
+    try:
+        readers = [Reader(Path(ln)) for ln in links]
+        for r in readers:
+            r.start()
+        time.sleep(4.0)
+    finally:
+        code, err = stop(proc)
+    fleet_out = [r.close() for r in readers]
+    assert code == 0, err
+    assert not any(Path(ln).is_symlink() or Path(ln).exists() for ln in links), "links left"
+
+    for rid, (seed, extra) in enumerate([(4, []), (5, []), (99, ["--profile", "usarsim"])]):
+        own = tmp_path / f"alone{rid}.jsonl"
+        own.write_text("".join(json.dumps({k: v for k, v in r.items() if k != "id"}) + "\n"
+                               for r in rows if r["id"] == rid))
+        args = [*common[:-1], str(seed), *extra]
+        p, (link,) = start_fleet(tmp_path, "--poses", str(own), "--link",
+                                 str(tmp_path / f"alone{rid}"), *args, n_lines=1)
+        try:
+            reader = Reader(Path(link))
+            reader.start()
+            time.sleep(3.0)
+        finally:
+            stop(p)
+        alone = epochs_by_time(reader.close())
+        mine = epochs_by_time(fleet_out[rid])
+        common_t = sorted(set(alone) & set(mine))
+        assert len(common_t) >= 20, (rid, len(alone), len(mine))
+        assert min(alone) in mine  # from the first epoch on
+        for t in common_t:
+            assert mine[t] == alone[t], f"receiver {rid} differs at {t!r}"
+    assert epochs_by_time(fleet_out[0]) != epochs_by_time(fleet_out[1])
+
+
+@pytest.mark.e2e
+def test_stalled_and_reconnecting_devices_do_not_delay_the_others(tmp_path):
+    proc, links = start_fleet(tmp_path, "--receivers", "4", "--poses", "demo", "--rate", "10",
+                              "--baud", "115200", "--link", str(tmp_path / "gps{id}"),
+                              "--scene", "none", n_lines=4)
+    try:
+        steady = Reader(Path(links[0]))
+        steady.start()
+        stalled = os.open(links[1], os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)  # never read
+        t_end = time.monotonic() + 6.0
+        reconnects = 0
+        while time.monotonic() < t_end:  # device 2: open, read a little, close, again
+            r = Reader(Path(links[2]))
+            r.start()
+            time.sleep(0.4)
+            r.close()
+            reconnects += 1
+            time.sleep(0.2)
+        got = steady.close()
+        os.close(stalled)
+        alive = proc.poll() is None
+    finally:
+        code, err = stop(proc)
+    assert alive and code == 0, err
+    assert reconnects >= 5
+    # Device 0 got every epoch, each within 50 ms of its time tag's second... of wall time:
+    # the tags are the simulated clock (here the wall clock) at the epoch.
+    ts = sorted({float(t[:2]) * 3600 + float(t[2:4]) * 60 + float(t[4:])
+                 for t in epochs_by_time(got)})
+    assert len(ts) >= 55
+    np.testing.assert_allclose(np.diff(ts), 0.1, atol=1e-6)  # none missing
+    lag = [(now % 86400.0) - (float(t[:2]) * 3600 + float(t[2:4]) * 60 + float(t[4:]))
+           for now, t in steady.arrivals]
+    lag = np.array(lag[1:])  # (the first: queued before the reader came)
+    assert np.percentile(lag, 99) < 0.05, np.percentile(lag, [50, 99, 100])
