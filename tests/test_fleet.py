@@ -159,6 +159,30 @@ def test_each_receiver_of_a_fleet_emits_what_it_emits_alone(campus):
         assert len(ggas) == 400 and ggas[-1].split(b",")[6] == b"1"
 
 
+def test_rows_give_the_bytes_of_one_receiver_simulated_epoch_by_epoch(campus):
+    # The live loop simulates receivers as rows (ReceiverRows); one receiver's rows must be
+    # what simulate() gives for its epochs one at a time (the code path of replay's batches).
+    from virtualgps.receiver import initial_state, simulate
+
+    cfg, scene, georef, eph = campus
+    fleet = run_members(campus, [(3, 21, {}), (4, 22, {})], 300)
+    from virtualgps.profiles import load_profile
+
+    prof = load_profile(cfg.profile.name, {}, flag_overrides={"rate_hz": 10.0})
+    rx = make_receiver(replace(cfg, profile=prof), scene, georef, eph, START)
+    fmt = nmea.NmeaFormat.from_dict(prof.nmea)
+    rng = np.random.default_rng(21)
+    state = initial_state(prof, START, rng, len(eph.prn))
+    out = bytearray(b"$PMTK010,001*2E\r\n")
+    poses = walk(3)
+    for k in range(300):
+        t = np.array([START + k / 10.0])
+        p, v, ok = poses.pose_at(t)
+        fixes, state = simulate(rx, t, p, v, ok, state, rng)
+        out += nmea.epoch_sentences(fixes, 0, fmt)
+    assert bytes(out) == fleet[3]
+
+
 # --- the pose source: ids, a flood of bad messages -------------------------------------------
 
 

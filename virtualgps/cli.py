@@ -214,11 +214,11 @@ def _status_text(fixes, stats, device) -> str:
     return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
 
 
-def _fleet_status(receivers, fixes_by_id: dict) -> str:
-    n_fix = sum(1 for f in fixes_by_id.values() if f.quality[0] > 0)
+def _fleet_status(receivers, last: dict) -> str:
+    n_fix = sum(1 for fix, _ in last.values() if fix)
     epochs = sum(r.stats.epochs for r in receivers)
     dropped = sum(getattr(r.device, "dropped_epochs", 0) for r in receivers)
-    t = max((float(f.t_unix_s[0]) for f in fixes_by_id.values()), default=0.0)
+    t = max((t for _, t in last.values()), default=0.0)
     extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
     return (f"{time.strftime('%H:%M:%S', time.gmtime(t))}Z  {len(receivers)} receivers, "
             f"{n_fix} with a fix  {epochs} epochs{extra}")
@@ -247,13 +247,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     last_fixes: dict[int, Any] = {}
     shown = [0.0]
 
-    def on_epoch(r, fixes) -> None:
+    def on_epoch(r, fixes, row) -> None:
         if not status.active:
             return
         if len(receivers) == 1:
             status.show(_status_text(fixes, r.stats, r.device))
             return
-        last_fixes[r.receiver_id] = fixes
+        last_fixes[r.receiver_id] = bool(fixes.quality[row] > 0), float(fixes.t_unix_s[row])
         now = time.monotonic()
         if now - shown[0] >= 1.0:  # a fleet's line: once a second
             shown[0] = now

@@ -25,7 +25,7 @@ from virtualgps.exceptions import PoseError
 from virtualgps.receiver import (
     Georef,
     Receiver,
-    Sky,
+    ReceiverRows,
     compute_sky,
     initial_state,
     restart,
@@ -275,6 +275,31 @@ class ReceiverPoses:
     def pump(self) -> None:
         return None
 
+    def poses_at(
+        self, t_unix_s: float, receiver_ids: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The poses of several receivers at one simulated time (see :func:`poses_at`); the
+        demo's walkers, one lap at different phases, in one interpolation.
+
+        Returns
+        -------
+        pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+        """
+        n = len(receiver_ids)
+        pos, vel, valid = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        laps: dict[int, list[int]] = {}
+        for b, rid in enumerate(receiver_ids):
+            p = self.providers.get(rid)
+            if isinstance(p, LoopProvider):
+                laps.setdefault(id(p.track), []).append(b)
+            elif p is not None:
+                pos[b], vel[b], valid[b] = (a[0] for a in p.pose_at(np.array([t_unix_s]), rid))
+        for idx in laps.values():
+            ps = [self.providers[receiver_ids[b]] for b in idx]
+            t_lap = np.array([(t_unix_s - p.t0_unix_s) % p.lap_s for p in ps])
+            pos[idx], vel[idx], valid[idx] = pose.interpolate(ps[0].track, t_lap, ps[0].max_gap_s)
+        return pos, vel, valid
+
     def pose_at(
         self, t_unix_s: np.ndarray, receiver_id: int = 0
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -483,32 +508,15 @@ class LiveReceiver:
                 log.info("client set SBAS %s, static navigation %.2f m/s",
                          "on" if new.sbas_active else "off", new.static_nav_mps)
 
-    def emit(
-        self, pos_enu_m: np.ndarray, vel_enu_mps: np.ndarray, valid: np.ndarray, sky: Sky
-    ) -> Fixes:
-        """Simulate the epoch at :attr:`t_next_unix_s`, queue its NMEA, move to the next one.
-
-        Parameters
-        ----------
-        pos_enu_m : (1, 3) metres, scene ENU, the antenna (offset applied)
-        vel_enu_mps : (1, 3) m/s
-        valid : (1,) bool, a recent pose exists
-        sky : the epoch's sky at ``pos_enu_m`` (:func:`epoch_skies`)
-
-        Returns
-        -------
-        fixes : Fixes of the one epoch
-        """
-        t_epoch = self.t_next_unix_s
-        fixes, self.state = simulate(self.rx, np.array([t_epoch]), pos_enu_m, vel_enu_mps,
-                                     valid, self.state, self.rng, sky=sky)
-        if self.out_fmt is not None:
-            data = nmea.epoch_sentences(fixes, 0, self.out_fmt)
+    def sent(self, data: bytes | None, has_fix: bool) -> None:
+        """Queue the epoch's NMEA (None: every sentence switched off) and move to the next
+        epoch."""
+        if data is not None:
             self.device.write_epoch(data)
             self.recent_sizes.append(len(data))
-        self.t_last = t_epoch
+        self.t_last = self.t_next_unix_s
         self.stats.epochs += 1
-        self.stats.fixes += int(fixes.quality[0] > 0)
+        self.stats.fixes += int(has_fix)
         self.k += 1
         # Fell behind by more than one period (machine suspended, debugger): skip to now rather
         # than emit a burst of old epochs.
@@ -516,15 +524,38 @@ class LiveReceiver:
         if k_now > self.k:
             self.stats.skipped_epochs += k_now - self.k
             self.k = k_now
-        return fixes
 
 
-def epoch_skies(
+def poses_at(
+    provider: PoseProvider, t_unix_s: float, receiver_ids: list[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The poses of several receivers at one simulated time: the provider's ``poses_at`` where
+    it has one, else its ``pose_at`` receiver by receiver.
+
+    Returns
+    -------
+    pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+    """
+    batch = getattr(provider, "poses_at", None)
+    if batch is not None:
+        return batch(t_unix_s, receiver_ids)
+    t = np.array([t_unix_s])
+    got = [provider.pose_at(t, rid) for rid in receiver_ids]
+    return (np.concatenate([p for p, _, _ in got]), np.concatenate([v for _, v, _ in got]),
+            np.concatenate([ok for _, _, ok in got]))
+
+
+def tick(
     members: list[LiveReceiver], provider: PoseProvider
-) -> list[tuple[LiveReceiver, np.ndarray, np.ndarray, np.ndarray, Sky]]:
-    """The poses and skies of receivers due together: one :func:`compute_sky` per receiver
-    configuration and epoch time, the receivers as its batch axis (SGP4 once, every ray of
-    every receiver in one Embree call).
+) -> list[tuple[list[LiveReceiver], Fixes, list[bytes | None]]]:
+    """Simulate the epoch of receivers due together and render their NMEA (sent by
+    :meth:`LiveReceiver.sent`).
+
+    Receivers that share a :class:`~virtualgps.receiver.Receiver` and an epoch time are one
+    batch: one :func:`compute_sky` for all their antennas (SGP4 once, every ray in one Embree
+    call), one :func:`simulate` with the receivers as rows (:class:`ReceiverRows`: each row
+    computed as that receiver alone would compute its one epoch), and their sentences
+    rendered in one pass per output format.
 
     Parameters
     ----------
@@ -533,23 +564,38 @@ def epoch_skies(
 
     Returns
     -------
-    rows : (receiver, pos (1, 3) m, vel (1, 3) m/s, valid (1,), sky) for each receiver, in
-        the order given
+    batches : (receivers, their Fixes (one row each, in that order), their epochs' bytes
+        (None: every sentence off)) per batch
     """
-    groups: dict[tuple[int, float], list[int]] = {}
-    for i, m in enumerate(members):
-        groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(i)
-    out: list = [None] * len(members)
-    for (_, t_epoch), idx in groups.items():
+    groups: dict[tuple[int, float], list[LiveReceiver]] = {}
+    for m in members:
+        groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(m)
+    out = []
+    for (_, t_epoch), group in groups.items():
+        rx = group[0].rx
+        n = len(group)
         t = np.array([t_epoch])
-        poses = [provider.pose_at(t, members[i].receiver_id) for i in idx]
-        valid = np.array([ok[0] for _, _, ok in poses])
-        pos = np.stack([p[0] + members[i].offset_enu_m for i, (p, _, _) in zip(idx, poses,
-                                                                               strict=True)])
+        pos, vel, valid = poses_at(provider, t_epoch, [m.receiver_id for m in group])
+        pos = pos + np.array([m.offset_enu_m for m in group])
         ant = np.where(valid[:, None], pos, 0.0)
-        sky = compute_sky(members[idx[0]].rx, t, ant[:, None, :])
-        for b, i in enumerate(idx):
-            out[i] = (members[i], pos[b : b + 1], poses[b][1], valid[b : b + 1], sky.item(b))
+        sky = compute_sky(rx, t, ant[:, None, :]).rows()
+        rows = ReceiverRows.stack([m.state for m in group], [m.rng for m in group], rx.profile,
+                                  group[0].n_sat)
+        fixes, rows = simulate(rx, np.full(n, t_epoch), pos, vel, valid, rows, None, sky=sky)
+        for m, st in zip(group, rows.unstack(rx.profile), strict=True):
+            m.state = st
+        by_fmt: dict[nmea.NmeaFormat, list[int]] = {}
+        for b, m in enumerate(group):
+            if m.out_fmt is not None:
+                by_fmt.setdefault(m.out_fmt, []).append(b)
+        data: list[bytes | None] = [None] * n
+        for fmt, idx in by_fmt.items():
+            if len(idx) == n:
+                data = list(nmea.render_batch(fixes, fmt))
+            else:
+                for b in idx:
+                    data[b] = nmea.epoch_sentences(fixes, b, fmt)
+        out.append((group, fixes, data))
     return out
 
 
@@ -613,7 +659,7 @@ def run_daemon(
     stats : DaemonStats
     """
     member = LiveReceiver(rx, device, fmt, clock, rng, link)
-    cb = None if on_epoch is None else (lambda m, fixes: on_epoch(fixes, m.stats))
+    cb = None if on_epoch is None else (lambda m, fixes, _: on_epoch(fixes, m.stats))
     run_receivers([member], provider, clock, stop, cb, max_epochs)
     return member.stats
 
@@ -623,7 +669,7 @@ def run_receivers(
     provider: PoseProvider,
     clock: SimClock,
     stop: threading.Event,
-    on_epoch: Callable[[LiveReceiver, Fixes], None] | None = None,
+    on_epoch: Callable[[LiveReceiver, Fixes, int], None] | None = None,
     max_epochs: int | None = None,
     waiter=None,
 ) -> None:
@@ -638,7 +684,8 @@ def run_receivers(
     provider : pose source, ``pose_at(t, receiver_id)``
     clock : the simulated clock
     stop : set by the signal handlers to end the loop
-    on_epoch : called after each receiver's epoch with the receiver and its Fixes
+    on_epoch : called after each receiver's epoch with the receiver, the Fixes of its batch
+        and its row there
     max_epochs : stop once every receiver has emitted this many epochs (tests)
     waiter : what the loop waits in: ``wait(deadline_s, fds)`` and ``take_client_ready()``
         (a :class:`virtualgps.fleet.ptyloop.PtyLoop` serving the devices; default: ``select``
@@ -647,6 +694,9 @@ def run_receivers(
     if waiter is None:
         waiter = _SelectWaiter([m.device for m in members])
     by_device = {id(m.device): m for m in members}
+    # An epoch is computed this long before its time and sent at its time: the last ticks'
+    # cost (a fleet of a thousand takes tens of milliseconds), so its first byte leaves on time.
+    lead_s = 0.0
     while not stop.is_set():
         # Wait for the next epoch due, reading poses and the clients' commands as they come.
         while not stop.is_set():
@@ -656,19 +706,26 @@ def run_receivers(
                 m.service_client()  # (may change a receiver's rate and next epoch)
             t_due = min(m.t_next_unix_s for m in members)
             deadline = clock.monotonic_at(t_due)
-            if deadline <= time.monotonic():
+            if deadline - lead_s <= time.monotonic():
                 break
-            waiter.wait(min(deadline, time.monotonic() + 0.1), provider.fileno_list())
+            waiter.wait(min(deadline - lead_s, time.monotonic() + 0.1), provider.fileno_list())
         if stop.is_set():
             break
-        lateness = time.monotonic() - deadline
         due = [m for m in members if m.t_next_unix_s <= t_due + 1e-9]
-        for m, pos, vel, valid, sky in epoch_skies(due, provider):
-            if lateness > 0.5 / m.rate:
-                m.stats.late_epochs += 1
-            m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
-            fixes = m.emit(pos, vel, valid, sky)
-            if on_epoch is not None:
-                on_epoch(m, fixes)
+        c0 = time.monotonic()
+        batches = tick(due, provider)
+        spent_s = time.monotonic() - c0
+        lead_s = min(1.25 * max(spent_s, 0.8 * lead_s) + 0.002, 0.5 / max(m.rate for m in due))
+        while time.monotonic() < deadline and not stop.is_set():
+            waiter.wait(deadline, [])  # (the devices' writers are served meanwhile)
+        lateness = time.monotonic() - deadline
+        for group, fixes, data in batches:
+            for b, m in enumerate(group):
+                if lateness > 0.5 / m.rate:
+                    m.stats.late_epochs += 1
+                m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
+                m.sent(data[b], bool(fixes.quality[b] > 0))
+                if on_epoch is not None:
+                    on_epoch(m, fixes, b)
         if max_epochs is not None and all(m.stats.epochs >= max_epochs for m in members):
             break

@@ -148,7 +148,8 @@ def gauss_markov(
 
     Parameters
     ----------
-    x0 : (m,) float, the state before the first epoch
+    x0 : (m,) float, the state before the first epoch (or (n_t, m): independent rows, see
+        :func:`first_order_recursion`)
     dt_s : (n_t,) float, seconds since the previous epoch (for the first: since x0's epoch)
     tau_s : float, correlation time, seconds
     sigma : (m,) or (n_t, m) float, stationary standard deviation
@@ -173,9 +174,13 @@ def prefer_lfilter() -> None:
 def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:
     """y_k = p_k y_(k-1) + u_k over epochs, for several series at once.
 
+    Rows that are independent series (receivers side by side, one epoch each) come with one
+    starting value per row: ``y0`` of shape (n_t, m) gives y_k = p_k y0_k + u_k, the same
+    products and sums as one epoch of the recursion.
+
     Parameters
     ----------
-    y0 : (m,) float, the value before the first epoch
+    y0 : (m,) float, the value before the first epoch; or (n_t, m), one per row
     p : (n_t,) float, each epoch's coefficient
     u : (n_t, m) float, each epoch's input
 
@@ -183,6 +188,8 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     -------
     y : (n_t, m) float
     """
+    if y0.ndim == 2:
+        return p[:, None] * y0 + u
     y = np.empty_like(u)
     n = u.shape[0]
     # Runs of one coefficient (a batch on the epoch grid has one run after its first epoch; a

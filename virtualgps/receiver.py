@@ -115,6 +115,115 @@ class ReceiverState:
 START_KINDS = ("hot", "warm", "cold")
 
 
+@dataclass(frozen=True)
+class ReceiverRows:
+    """The states of several receivers simulated side by side, one epoch each (a fleet's
+    tick): :class:`ReceiverState`'s fields with a leading row axis, one row per receiver.
+
+    What a receiver's state leaves as None is a neutral value here: no start-up pending
+    (``usable_from_t_unix_s`` -inf, ``no_fix_until_t_unix_s`` -inf), no start-up error
+    (``has_start_bias`` False), no filter or held output (NaN rows), Gauss-Markov processes
+    and tracking at their start (zeros, not tracked). :func:`simulate` given rows computes
+    each row as it computes one receiver's one epoch, to the bit.
+
+    rngs : the receivers' own generators (the paper's two uniforms each)
+    streams : the receivers' model streams (:func:`model_streams`)
+    """
+
+    n_epochs: np.ndarray
+    last_t_unix_s: np.ndarray
+    no_fix_until_t_unix_s: np.ndarray
+    gm_m: np.ndarray
+    last_alt_hae_m: np.ndarray
+    nav_enu_m: np.ndarray
+    hold_enu_m: np.ndarray
+    usable_from_t_unix_s: np.ndarray
+    start_bias_enu_m: np.ndarray
+    has_start_bias: np.ndarray
+    fade_db: np.ndarray
+    tracked: np.ndarray
+    acq_run: np.ndarray
+    mp_m: np.ndarray
+    rr_mps: np.ndarray
+    rngs: list
+    streams: list
+
+    @staticmethod
+    def stack(states: list[ReceiverState], rngs: list[np.random.Generator], profile: Profile,
+              n_sat: int) -> ReceiverRows:
+        """The rows of ``states`` (receivers with one ``profile`` and ``n_sat`` satellites).
+
+        Parameters
+        ----------
+        states : one ReceiverState per receiver
+        rngs : their generators
+        profile : their profile (the width of the correlated-error state)
+        n_sat : number of satellites
+
+        Returns
+        -------
+        rows : ReceiverRows
+        """
+        ce = profile.correlated_error
+        gm_w = n_sat if ce.domain == "range" else 3
+
+        def rows(name: str, width: int, fill, dtype=float) -> np.ndarray:
+            out = np.full((len(states), width), fill, dtype)
+            for i, st in enumerate(states):
+                v = getattr(st, name)
+                if v is not None and np.shape(v) == (width,):
+                    out[i] = v
+            return out
+
+        return ReceiverRows(
+            n_epochs=np.array([st.n_epochs for st in states]),
+            last_t_unix_s=np.array([st.last_t_unix_s for st in states], float),
+            no_fix_until_t_unix_s=np.array([st.no_fix_until_t_unix_s for st in states], float),
+            gm_m=rows("gm_m", gm_w, 0.0),
+            last_alt_hae_m=np.array([st.last_alt_hae_m for st in states], float),
+            nav_enu_m=rows("nav_enu_m", 3, np.nan),
+            hold_enu_m=rows("hold_enu_m", 3, np.nan),
+            usable_from_t_unix_s=rows("usable_from_t_unix_s", n_sat, -np.inf),
+            start_bias_enu_m=rows("start_bias_enu_m", 3, 0.0),
+            has_start_bias=np.array([st.start_bias_enu_m is not None for st in states]),
+            fade_db=rows("fade_db", n_sat, 0.0),
+            tracked=rows("tracked", n_sat, False, bool),
+            acq_run=rows("acq_run", n_sat, 0, int),
+            mp_m=rows("mp_m", n_sat, 0.0),
+            rr_mps=rows("rr_mps", n_sat, 0.0),
+            rngs=list(rngs),
+            streams=[st.streams if st.streams is not None else model_streams(r)
+                     for st, r in zip(states, rngs, strict=True)],
+        )
+
+    def unstack(self, profile: Profile) -> list[ReceiverState]:
+        """One ReceiverState per row (None where the row holds the neutral value)."""
+        ce, ct = profile.correlated_error, profile.cn0_tracking
+        out = []
+        for i in range(len(self.n_epochs)):
+            nav = self.nav_enu_m[i]
+            hold = self.hold_enu_m[i]
+            usable = self.usable_from_t_unix_s[i]
+            out.append(ReceiverState(
+                n_epochs=int(self.n_epochs[i]),
+                last_t_unix_s=float(self.last_t_unix_s[i]),
+                no_fix_until_t_unix_s=float(self.no_fix_until_t_unix_s[i]),
+                gm_m=self.gm_m[i] if ce.enabled else None,
+                last_alt_hae_m=float(self.last_alt_hae_m[i]),
+                nav_enu_m=nav if not np.isnan(nav[0]) else None,
+                hold_enu_m=hold if not np.isnan(hold[0]) else None,
+                usable_from_t_unix_s=usable if usable.size and usable[0] != -np.inf else None,
+                start_bias_enu_m=self.start_bias_enu_m[i] if self.has_start_bias[i] else None,
+                fade_db=self.fade_db[i] if ct.enabled else None,
+                tracked=self.tracked[i] if ct.enabled else None,
+                acq_run=self.acq_run[i] if ct.enabled else None,
+                mp_m=self.mp_m[i] if profile.multipath.enabled else None,
+                rr_mps=self.rr_mps[i] if "velocity" in draw_layout(profile, 1) else None,
+                streams=self.streams[i],
+            ))
+        return out
+
+
 def restart(
     state: ReceiverState,
     kind: str,
@@ -267,19 +376,17 @@ class Sky:
     foliage_db: np.ndarray
     wall_dist_m: np.ndarray
 
-    def item(self, i: int) -> Sky:
-        """The sky of one antenna of a batch: every array indexed by ``i`` on its first axis.
-
-        Parameters
-        ----------
-        i : index into the leading batch axis (a sky computed for antennas of shape
-            ``(n_rx, n_t, 3)`` gives the ``(n_t, ...)`` sky of receiver ``i``)
+    def rows(self) -> Sky:
+        """The sky of a batch of antennas at one epoch each, as rows: every array's first two
+        axes ``(n_rx, 1)`` merged into one (the rows :func:`simulate` takes with
+        :class:`ReceiverRows`).
 
         Returns
         -------
-        sky : Sky, views of this one's arrays
+        sky : Sky, ``(n_rx, ...)`` views of this one's arrays
         """
-        return Sky(*(getattr(self, f.name)[i] for f in fields(self)))
+        return Sky(*(a.reshape((-1,) + a.shape[2:]) for a in
+                     (getattr(self, f.name) for f in fields(self))))
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
@@ -737,13 +844,13 @@ def position_errors(
             el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
             x0 = _gm_start(state.gm_m, n_sat)
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
-            gm_state = gm[-1]
+            gm_state = gm if x0.ndim == 2 else gm[-1]
             corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
         else:
             x0 = _gm_start(state.gm_m, 3)
             sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
-            gm_state = gm[-1]
+            gm_state = gm if x0.ndim == 2 else gm[-1]
             enu += gm
             var += sig**2
             modelled[:] = True
@@ -767,7 +874,7 @@ def position_errors(
             # Unit processes, one per satellite, running whether or not it is seen; the sigma
             # follows the elevation and the antenna's distance to the walls epoch by epoch.
             x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z)
-            mp_state = x[-1]
+            mp_state = x if x0.ndim == 2 else x[-1]
             sigma_mp = errors.multipath_sigma_m(sky.el_deg, sky.wall_dist_m, mp.sigma_m,
                                                 mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
             # Line of sight only: a blocked satellite arrives, if at all, off a wall (nlos).
@@ -831,8 +938,8 @@ def velocity_errors(
         return np.zeros((n_t, 3)), None
     c = layout["velocity"]
     z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
-    x = errors.gauss_markov(_gm_start(state.rr_mps, n_sat), dt_s, d.range_rate_tau_s,
-                            np.ones(n_sat), z)
+    x0 = _gm_start(state.rr_mps, n_sat)
+    x = errors.gauss_markov(x0, dt_s, d.range_rate_tau_s, np.ones(n_sat), z)
     uere = _uere_args(prof)
     sigma_i = errors.uere_sigma_m(sky.el_deg, *uere)
     eps = d.range_rate_sigma_mps * (sigma_i / _uere_zenith_m(uere)) * x
@@ -840,7 +947,7 @@ def velocity_errors(
     k = np.flatnonzero(used.sum(axis=1) == 3)
     if k.size:  # a 2D fix: east/north/clock drift
         e[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
-    return np.where(np.isfinite(e), e, 0.0), x[-1]
+    return np.where(np.isfinite(e), e, 0.0), x if x0.ndim == 2 else x[-1]
 
 
 def carry_held_height(
@@ -933,17 +1040,24 @@ def tracked_cn0(
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
     cn0 = cn0 - sky.nlos_loss_db - sky.foliage_db
     cn0 = np.where(above & (~sky.blocked | sky.nlos), cn0, -np.inf)
+    rows = isinstance(state, ReceiverRows)
     finite_dt = dt_s[np.isfinite(dt_s)]
-    if finite_dt.size > 1:
+    if rows:  # each receiver's own step (its first epoch: the profile's)
+        step = np.where(np.isfinite(dt_s), dt_s, 1.0 / prof.rate_hz)
+        reacq = np.maximum(1, np.ceil(ct.reacq_s / step - 1e-9).astype(int))[:, None]
+    elif finite_dt.size > 1:
         step_s = float(np.median(finite_dt))
     else:  # (the live loop's one epoch: np.median costs more than the rest of the tracking)
         step_s = float(finite_dt[0]) if finite_dt.size else 1.0 / prof.rate_hz
-    reacq = max(1, int(np.ceil(ct.reacq_s / step_s - 1e-9)))
+    if not rows:
+        reacq = max(1, int(np.ceil(ct.reacq_s / step_s - 1e-9)))
     tracked0 = state.tracked if state.tracked is not None else np.zeros(n_sat, bool)
     run0 = state.acq_run if state.acq_run is not None else np.zeros(n_sat, int)
     tracked, run = signals.track(cn0, ct.acq_dbhz, ct.track_dbhz, reacq, tracked0, run0)
     out = np.where(tracked, cn0, np.nan)
     usable = tracked & (cn0 - fade >= ct.use_dbhz) if ct.use_dbhz > 0.0 else tracked
+    if rows:
+        return out, usable, {"fade_db": fade, "tracked": tracked, "acq_run": run}
     return out, usable, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
 
 
@@ -966,7 +1080,8 @@ def nav_filter(
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first: a = 1)
     has_fix : (n_t,) bool
     tau_s : the filter's time constant, seconds
-    y0_enu_m : (3,) metres, the filter output at the epoch before the batch, or None (restart)
+    y0_enu_m : (3,) metres, the filter output at the epoch before the batch, or None (restart);
+        (n_t, 3) for rows that are receivers at one epoch each (NaN rows: restart)
 
     Returns
     -------
@@ -976,6 +1091,11 @@ def nav_filter(
     a = 1.0 - np.exp(-np.asarray(dt_s, dtype=float) / tau_s)
     keep = 1.0 - a
     filt = np.array(pos_enu_m, dtype=float)
+    if y0_enu_m is not None and y0_enu_m.ndim == 2:  # rows: receivers, one epoch each; NaN
+        # rows of y0 restart (as None does)
+        cont = has_fix & ~np.isnan(y0_enu_m[:, 0])
+        filt = np.where(cont[:, None], a[:, None] * filt + keep[:, None] * y0_enu_m, filt)
+        return filt, np.where(has_fix[:, None], filt, np.nan)
     fix = np.asarray(has_fix, dtype=bool).tolist()
     if len(fix) > 8:  # runs of fixes [start, stop): the recursion only restarts at a run's start
         edges = np.flatnonzero(np.diff(np.concatenate(([False], fix, [False])).astype(int)))
@@ -1037,6 +1157,11 @@ def output_stage(
     if prof.static_hold.enabled and prof.static_hold.threshold_mps > 0:
         slow = has_fix & (np.hypot(vel_enu_mps[:, 0], vel_enu_mps[:, 1])
                           < prof.static_hold.threshold_mps)
+        if isinstance(state, ReceiverRows):  # receivers, one epoch each (NaN: none held)
+            carried = slow & ~np.isnan(state.hold_enu_m[:, 0])
+            out = np.where(carried[:, None], state.hold_enu_m, out)
+            update["hold_enu_m"] = np.where(slow[:, None], out, np.nan)
+            return out - truth_enu_m, update
         # Each slow run holds the output of its first epoch (or the held position carried in).
         k = np.arange(out.shape[0])
         start = np.maximum.accumulate(np.where(~slow, k + 1, 0))  # first epoch of the run
@@ -1053,8 +1178,8 @@ def _gm_start(carried: np.ndarray | None, n: int) -> np.ndarray:
     """The (n,) Gauss-Markov state to continue from: the one carried in the receiver state,
     or zeros at the start (the first epoch's infinite step then draws it from the stationary
     distribution)."""
-    if carried is not None and carried.shape == (n,):
-        return carried
+    if carried is not None and carried.shape[-1:] == (n,):
+        return carried  # ((rows, n): receivers side by side, ReceiverRows)
     return np.zeros(n)
 
 
@@ -1081,13 +1206,17 @@ def hold_altitude(
     ----------
     alt_hae_m : (n_t,) metres, the 3D solution's altitude (meaningless on 2D epochs)
     fix_3d, fix_2d : (n_t,) bool
-    last_alt_hae_m : altitude of the last 3D fix before the batch (NaN if none)
+    last_alt_hae_m : altitude of the last 3D fix before the batch (NaN if none); (n_t,) for
+        rows that are receivers side by side at one epoch each
 
     Returns
     -------
     alt_hae_m : (n_t,) metres, with 2D epochs holding the last 3D altitude (NaN if none yet)
-    last_alt_hae_m : the last 3D altitude after the batch
+    last_alt_hae_m : the last 3D altitude after the batch ((n_t,) for rows)
     """
+    if np.ndim(last_alt_hae_m) == 1:  # rows: each its own one epoch
+        return (np.where(fix_2d, last_alt_hae_m, alt_hae_m),
+                np.where(fix_3d, alt_hae_m, last_alt_hae_m))
     if not fix_2d.any():
         last = alt_hae_m[fix_3d][-1] if fix_3d.any() else last_alt_hae_m
         return alt_hae_m, float(last)
@@ -1154,9 +1283,16 @@ def simulate(
     # All random numbers of an epoch come as one row per stream, so batch and epoch-by-epoch
     # runs consume the generators identically (the paper's model uses the first two columns,
     # from ``rng`` itself).
-    streams = state.streams if state.streams is not None else model_streams(rng)
-    u = draw_uniforms(rng, streams, layout, n_t)
-    dt_s = t - np.concatenate(([state.last_t_unix_s], t[:-1]))  # (np.diff: slow on one epoch)
+    rows = isinstance(state, ReceiverRows)  # receivers side by side, one epoch each
+    if rows:
+        streams = state.streams
+        u = np.concatenate([draw_uniforms(r, st, layout, 1)
+                            for r, st in zip(state.rngs, streams, strict=True)])
+        dt_s = t - state.last_t_unix_s
+    else:
+        streams = state.streams if state.streams is not None else model_streams(rng)
+        u = draw_uniforms(rng, streams, layout, n_t)
+        dt_s = t - np.concatenate(([state.last_t_unix_s], t[:-1]))  # (np.diff: slow on one)
     dt_s = np.where(np.isfinite(dt_s), dt_s, np.inf)  # first epoch ever: stationary start
     # Steps to the microsecond: epochs k / rate far from 1970 differ from 1 / rate in their last
     # bits; equal steps keep the Gauss-Markov recursions on their one-coefficient fast path.
@@ -1172,7 +1308,8 @@ def simulate(
         )
         cn0 = np.where(seen, cn0, np.nan)
     if state.usable_from_t_unix_s is not None:  # start-up: ephemerides still being decoded
-        decoded = t[:, None] >= state.usable_from_t_unix_s[None, :]
+        decoded = t[:, None] >= (state.usable_from_t_unix_s if rows
+                                 else state.usable_from_t_unix_s[None, :])
         # The four highest satellites (the strongest signals) are decoded first: the first fix.
         first = select_used(seen, sky.el_deg, 4) & (t >= state.no_fix_until_t_unix_s)[:, None]
         seen = seen & (decoded | first)
@@ -1191,7 +1328,8 @@ def simulate(
     if state.start_bias_enu_m is not None:  # start-up error converging after the first fix
         since = np.maximum(t - state.no_fix_until_t_unix_s, 0.0)
         decay = np.exp(-since / prof.cold_start.converge_tau_s)[:, None]
-        err_m = err_m + decay * state.start_bias_enu_m
+        biased = err_m + decay * state.start_bias_enu_m
+        err_m = np.where(state.has_start_bias[:, None], biased, err_m) if rows else biased
     err_enu, out_state = output_stage(prof, ant, err_m, vel, dt_s, has_fix, state)
     north_m, east_m, up_m = err_enu[:, 1], err_enu[:, 0], err_enu[:, 2]
     if prof.georef == "flat_earth":
@@ -1249,8 +1387,8 @@ def simulate(
     )
     new_state = replace(
         state,
-        n_epochs=state.n_epochs + n_t,
-        last_t_unix_s=float(t[-1]) if n_t else state.last_t_unix_s,
+        n_epochs=state.n_epochs + (1 if rows else n_t),
+        last_t_unix_s=t if rows else (float(t[-1]) if n_t else state.last_t_unix_s),
         gm_m=err.gm_m,
         mp_m=err.mp_m,
         rr_mps=rr_state,

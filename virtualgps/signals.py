@@ -71,19 +71,23 @@ def track(
     cn0_dbhz : (n_t, m) float, dB-Hz (-inf or NaN: no signal)
     acq_dbhz, track_dbhz : thresholds, dB-Hz (acq >= track)
     reacq_epochs : epochs of sustained signal before (re)acquisition, >= 1
-    tracked0 : (m,) bool, tracked before the first row
-    run0 : (m,) int, epochs at or above the acquisition threshold before the first row
+    tracked0 : (m,) bool, tracked before the first row (or (n_t, m): rows that are
+        independent receivers at one epoch each, ``reacq_epochs`` then (n_t, 1) or a number)
+    run0 : (m,) int, epochs at or above the acquisition threshold before the first row (or
+        (n_t, m) with ``tracked0``)
 
     Returns
     -------
     tracked : (n_t, m) bool
-    run : (m,) int, the run after the last row (the next call's ``run0``)
+    run : (m,) int, the run after the last row (the next call's ``run0``; (n_t, m) for rows)
     """
     c = np.where(np.isnan(cn0_dbhz), -np.inf, cn0_dbhz)  # (nan_to_num: slow on tiny arrays)
-    if c.shape[0] == 1:  # the live loop's one epoch: what the running-index tricks reduce to
+    rows = np.ndim(run0) == 2
+    if c.shape[0] == 1 or rows:  # one epoch (of each receiver): what the running-index
+        # tricks reduce to
         run = np.where(c >= acq_dbhz, run0 + 1, 0)
         event = np.where(run >= reacq_epochs, 1, np.where(c < track_dbhz, -1, 0))
-        return np.where(event != 0, event > 0, tracked0), run[-1]
+        return np.where(event != 0, event > 0, tracked0), run if rows else run[-1]
     run = run_length(c >= acq_dbhz, run0)
     # Events: +1 acquire, -1 lose; otherwise the state carries on (hysteresis band).
     event = np.where(run >= reacq_epochs, 1, np.where(c < track_dbhz, -1, 0))

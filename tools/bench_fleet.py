@@ -1,0 +1,146 @@
+"""Benchmark: a fleet of receivers in one daemon, every device read by one epoll reader process.
+
+Usage:
+
+    python tools/bench_fleet.py [--receivers 1,10,100,1000] [--seconds 20] [--rate 10]
+        [--scene none|default] [--config FILE]
+
+For each fleet size: ``virtualgps run --receivers N --poses demo`` at ``--rate`` Hz and
+115200 baud, and one reader process that opens every device and reads them all through one
+epoll. After a warm-up the daemon's CPU (all threads, from /proc) is measured over
+``--seconds``; the reader notes when the first byte of each epoch arrived on each device. The
+report, one line per size: the daemon's CPU in cores and per receiver-epoch, the share of
+epochs delivered on the worst device, and the first byte's delay after its time tag (median
+and 99th percentile over all devices and epochs).
+
+The time tag is the epoch's simulated UTC, here the wall clock (no --start-time): the delay is
+what a client sees between the epoch's instant and its first byte.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+READER = r'''
+import json, os, select, sys, time
+paths, seconds = sys.argv[1].split(","), float(sys.argv[2])
+ep = select.epoll()
+fds = {}
+for i, p in enumerate(paths):
+    fd = os.open(p, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    fds[fd] = i
+    ep.register(fd, select.EPOLLIN)
+tail = [b""] * len(paths)
+first = [[] for _ in paths]  # (arrival wall time, GGA time field) of each epoch's first byte
+t_end = time.time() + seconds
+while time.time() < t_end:
+    for fd, _ in ep.poll(0.05):
+        try:
+            chunk = os.read(fd, 65536)
+        except OSError:
+            continue
+        now = time.time()
+        i = fds[fd]
+        buf = tail[i] + chunk
+        start = 0
+        while True:
+            k = buf.find(b"$GPGGA,", start)
+            if k < 0 or len(buf) < k + 17:
+                break
+            if k >= len(tail[i]):  # (a GGA that arrived in this read: its first byte now)
+                first[i].append((now, buf[k + 7:k + 17].decode("ascii", "replace")))
+            start = k + 1
+        tail[i] = buf[-32:]
+print(json.dumps(first))
+'''
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (all threads)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def tag_s(field: str) -> float:
+    return int(field[:2]) * 3600 + int(field[2:4]) * 60 + float(field[4:])
+
+
+def bench(n: int, seconds: float, rate: float, scene: str, cfg: str | None) -> dict:
+    """One fleet size; returns its figures."""
+    with tempfile.TemporaryDirectory() as tmp:
+        args = [sys.executable, "-m", "virtualgps", "run", "--receivers", str(n), "--poses",
+                "demo", "--rate", str(rate), "--baud", "115200", "--link",
+                str(Path(tmp) / "gps{id}"), "--duration", str(seconds + 30)]
+        if scene != "default":
+            args += ["--scene", scene]
+        if cfg:
+            args += ["--config", cfg]
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                text=True)
+        try:
+            links = [proc.stdout.readline().split()[3] for _ in range(n)]
+            warm_s = 5.0
+            reader = subprocess.Popen([sys.executable, "-c", READER, ",".join(links),
+                                       str(seconds + warm_s)], stdout=subprocess.PIPE,
+                                      text=True)
+            time.sleep(warm_s)
+            c0, w0 = cpu_s(proc.pid), time.time()
+            r0 = cpu_s(reader.pid)
+            time.sleep(seconds)
+            c1, w1 = cpu_s(proc.pid), time.time()
+            r1 = cpu_s(reader.pid)
+            out, _ = reader.communicate(timeout=60)
+        finally:
+            proc.terminate()
+            proc.wait(30)
+    first = json.loads(out)
+    day = np.floor(w0 / 86400.0) * 86400.0
+    delays, shares = [], []
+    for dev in first:
+        arr = [(t, tag_s(f)) for t, f in dev if w0 <= t <= w1]
+        if not arr:
+            shares.append(0.0)
+            continue
+        t_arr = np.array([a for a, _ in arr])
+        tags = np.array([g for _, g in arr]) + day
+        tags = np.where(tags - t_arr > 43200, tags - 86400, tags)  # (midnight)
+        delays.extend(t_arr - tags)
+        shares.append(len(set(np.round(tags, 3))) / ((w1 - w0) * rate))
+    d = np.array(delays)
+    cores = (c1 - c0) / (w1 - w0)
+    return {
+        "receivers": n, "cores": cores, "ms_per_receiver_epoch": 1e3 * cores / (n * rate),
+        "worst_device_share": min(shares), "delay_median_ms": 1e3 * float(np.median(d)),
+        "delay_p99_ms": 1e3 * float(np.percentile(d, 99)), "reader_cores": (r1 - r0) / (w1 - w0),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--receivers", default="1,10,100,1000")
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--rate", type=float, default=10.0)
+    ap.add_argument("--scene", default="none", help="'none' (open sky), 'default' (Magdeburg) "
+                    "or a scene path")
+    ap.add_argument("--config", help="a config file of profile overrides (e.g. every effect)")
+    args = ap.parse_args()
+    for n in (int(x) for x in args.receivers.split(",")):
+        r = bench(n, args.seconds, args.rate, args.scene, args.config)
+        print(f"{n:5d} receivers at {args.rate:g} Hz (scene {args.scene}): daemon "
+              f"{r['cores']:.2f} cores ({r['ms_per_receiver_epoch']:.3f} ms per receiver-epoch)"
+              f"; worst device got {100 * r['worst_device_share']:.1f} % of epochs; first byte "
+              f"{r['delay_median_ms']:.1f} ms after the tag (p99 {r['delay_p99_ms']:.1f} ms); "
+              f"reader {r['reader_cores']:.2f} cores", flush=True)
+
+
+if __name__ == "__main__":
+    main()
