@@ -87,19 +87,23 @@ class PoseProvider(Protocol):
     def close(self) -> None: ...
 
 
-class TrackProvider:
-    """A pose log (or any PoseTrack in scene ENU) replayed in real time from ``t0_unix_s``."""
-
-    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
-        self.track = track
-        self.shift_s = t0_unix_s - float(track.t_unix_s[0]) if len(track) else 0.0
-        self.max_gap_s = max_gap_s
+class _KnownPoses:
+    """A provider whose poses are known in advance: nothing to wait for or read."""
 
     def fileno_list(self) -> list[int]:
         return []
 
     def pump(self) -> None:
         return None
+
+
+class TrackProvider(_KnownPoses):
+    """A pose log (or any PoseTrack in scene ENU) replayed in real time from ``t0_unix_s``."""
+
+    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
+        self.track = track
+        self.shift_s = t0_unix_s - float(track.t_unix_s[0]) if len(track) else 0.0
+        self.max_gap_s = max_gap_s
 
     def pose_at(
         self, t_unix_s: np.ndarray, receiver_id: int = 0
@@ -258,7 +262,7 @@ class LiveProvider:
         self.source.close()
 
 
-class ReceiverPoses:
+class ReceiverPoses(_KnownPoses):
     """Each receiver's own provider (pose logs split by id, demo walks): ``pose_at`` by id.
 
     Parameters
@@ -268,12 +272,6 @@ class ReceiverPoses:
 
     def __init__(self, providers: dict[int, PoseProvider]) -> None:
         self.providers = providers
-
-    def fileno_list(self) -> list[int]:
-        return []
-
-    def pump(self) -> None:
-        return None
 
     def poses_at(
         self, t_unix_s: float, receiver_ids: list[int]
