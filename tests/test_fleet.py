@@ -372,3 +372,31 @@ def test_stalled_and_reconnecting_devices_do_not_delay_the_others(tmp_path):
            for now, t in steady.arrivals]
     lag = np.array(lag[1:])  # (the first: queued before the reader came)
     assert np.percentile(lag, 99) < 0.05, np.percentile(lag, [50, 99, 100])
+
+
+@pytest.mark.e2e
+def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
+    # Each receiver has its own MTK command link: GSV switched off on device 1 (PMTK314) stays
+    # on for device 0, and only device 1 answers.
+    proc, links = start_fleet(tmp_path, "--receivers", "2", "--poses", "demo", "--rate", "5",
+                              "--scene", "none", "--link", str(tmp_path / "gps{id}"), n_lines=2)
+    try:
+        quiet = Reader(Path(links[0]))
+        quiet.start()
+        fd = os.open(links[1], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        talker = Reader(Path(links[1]))
+        talker.start()
+        time.sleep(1.0)
+        os.write(fd, nmea.format_sentence("PMTK314," + ",".join(
+            ["0", "1", "1", "1", "1", "0"] + ["0"] * 13)).encode("ascii"))
+        time.sleep(2.5)
+        mark0, mark1 = len(quiet.data), len(talker.data)
+        time.sleep(2.0)
+        dev0, dev1 = quiet.close(), talker.close()
+        os.close(fd)
+    finally:
+        code, err = stop(proc)
+    assert code == 0, err
+    assert b"$PMTK001,314,3*36" in dev1 and b"$PMTK001" not in dev0
+    assert b"$GPGSV" not in dev1[mark1:] and dev1[mark1:].count(b"$GPGGA") >= 8
+    assert dev0[mark0:].count(b"$GPGSV") >= 8
