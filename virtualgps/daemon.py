@@ -22,10 +22,12 @@ import numpy as np
 
 from virtualgps import mtk, nmea, pose
 from virtualgps.exceptions import PoseError
+from virtualgps.profiles import Profile
 from virtualgps.receiver import (
     Georef,
     Receiver,
     ReceiverRows,
+    ReceiverState,
     compute_sky,
     initial_state,
     restart,
@@ -451,11 +453,28 @@ class LiveReceiver:
         self.applied = link.settings if link is not None else None  # the settings in effect
         t_from = clock.now_unix_s() if t_first_unix_s is None else t_first_unix_s
         self.k = math.ceil(t_from * self.rate - 1e-9)
+        # Its row in the batch it was last simulated in, while nothing else touched its state:
+        # the next tick of the same batch goes on from the rows as they are.
+        self._row: tuple[ReceiverRows, int, Profile] | None = None
         # Power-on at the first epoch's time, as replay does: a run with --start-time starts
         # the same whatever its set-up took (a fleet's receiver as the same receiver alone).
         self.state = initial_state(prof, self.t_next_unix_s, rng, self.n_sat)
         if link is not None:
             device.write_epoch(link.startup().encode("ascii"))
+
+    @property
+    def state(self) -> ReceiverState:
+        """The receiver state after its last epoch."""
+        if self._row is not None:
+            rows, i, prof = self._row
+            self._state = rows.row_state(i, prof)
+            self._row = None
+        return self._state
+
+    @state.setter
+    def state(self, state: ReceiverState) -> None:
+        self._state = state
+        self._row = None
 
     def next_k(self, r: float) -> int:
         """Index of the next epoch at rate ``r``: after the last one, not in the past."""
@@ -577,11 +596,17 @@ def tick(
         pos = pos + np.array([m.offset_enu_m for m in group])
         ant = np.where(valid[:, None], pos, 0.0)
         sky = compute_sky(rx, t, ant[:, None, :]).rows()
-        rows = ReceiverRows.stack([m.state for m in group], [m.rng for m in group], rx.profile,
-                                  group[0].n_sat)
+        last = group[0]._row
+        if last is not None and len(last[0].n_epochs) == n and all(
+                m._row is not None and m._row[0] is last[0] and m._row[1] == b
+                for b, m in enumerate(group)):
+            rows = last[0]  # (the same batch as last tick, its states untouched since)
+        else:
+            rows = ReceiverRows.stack([m.state for m in group], [m.rng for m in group],
+                                      rx.profile, group[0].n_sat)
         fixes, rows = simulate(rx, np.full(n, t_epoch), pos, vel, valid, rows, None, sky=sky)
-        for m, st in zip(group, rows.unstack(rx.profile), strict=True):
-            m.state = st
+        for b, m in enumerate(group):
+            m._row = (rows, b, rx.profile)
         by_fmt: dict[nmea.NmeaFormat, list[int]] = {}
         for b, m in enumerate(group):
             if m.out_fmt is not None:

@@ -196,32 +196,39 @@ class ReceiverRows:
                      for st, r in zip(states, rngs, strict=True)],
         )
 
-    def unstack(self, profile: Profile) -> list[ReceiverState]:
-        """One ReceiverState per row (None where the row holds the neutral value)."""
+    def row_state(self, i: int, profile: Profile) -> ReceiverState:
+        """Row ``i`` as a ReceiverState (None where the row holds the neutral value).
+
+        Parameters
+        ----------
+        i : the row
+        profile : the receivers' profile (which effects keep a state)
+
+        Returns
+        -------
+        state : ReceiverState
+        """
         ce, ct = profile.correlated_error, profile.cn0_tracking
-        out = []
-        for i in range(len(self.n_epochs)):
-            nav = self.nav_enu_m[i]
-            hold = self.hold_enu_m[i]
-            usable = self.usable_from_t_unix_s[i]
-            out.append(ReceiverState(
-                n_epochs=int(self.n_epochs[i]),
-                last_t_unix_s=float(self.last_t_unix_s[i]),
-                no_fix_until_t_unix_s=float(self.no_fix_until_t_unix_s[i]),
-                gm_m=self.gm_m[i] if ce.enabled else None,
-                last_alt_hae_m=float(self.last_alt_hae_m[i]),
-                nav_enu_m=nav if not np.isnan(nav[0]) else None,
-                hold_enu_m=hold if not np.isnan(hold[0]) else None,
-                usable_from_t_unix_s=usable if usable.size and usable[0] != -np.inf else None,
-                start_bias_enu_m=self.start_bias_enu_m[i] if self.has_start_bias[i] else None,
-                fade_db=self.fade_db[i] if ct.enabled else None,
-                tracked=self.tracked[i] if ct.enabled else None,
-                acq_run=self.acq_run[i] if ct.enabled else None,
-                mp_m=self.mp_m[i] if profile.multipath.enabled else None,
-                rr_mps=self.rr_mps[i] if "velocity" in draw_layout(profile, 1) else None,
-                streams=self.streams[i],
-            ))
-        return out
+        nav = self.nav_enu_m[i]
+        hold = self.hold_enu_m[i]
+        usable = self.usable_from_t_unix_s[i]
+        return ReceiverState(
+            n_epochs=int(self.n_epochs[i]),
+            last_t_unix_s=float(self.last_t_unix_s[i]),
+            no_fix_until_t_unix_s=float(self.no_fix_until_t_unix_s[i]),
+            gm_m=self.gm_m[i] if ce.enabled else None,
+            last_alt_hae_m=float(self.last_alt_hae_m[i]),
+            nav_enu_m=nav if not np.isnan(nav[0]) else None,
+            hold_enu_m=hold if not np.isnan(hold[0]) else None,
+            usable_from_t_unix_s=usable if usable.size and usable[0] != -np.inf else None,
+            start_bias_enu_m=self.start_bias_enu_m[i] if self.has_start_bias[i] else None,
+            fade_db=self.fade_db[i] if ct.enabled else None,
+            tracked=self.tracked[i] if ct.enabled else None,
+            acq_run=self.acq_run[i] if ct.enabled else None,
+            mp_m=self.mp_m[i] if profile.multipath.enabled else None,
+            rr_mps=self.rr_mps[i] if "velocity" in draw_layout(profile, 1) else None,
+            streams=self.streams[i],
+        )
 
 
 def restart(
@@ -743,15 +750,22 @@ def model_streams(rng: np.random.Generator) -> dict[str, np.random.Generator]:
             for name, k in _STREAM_KEYS.items()}
 
 
+@functools.lru_cache(maxsize=32)
+def _draw_plan(layout_items: tuple[tuple[str, int], ...]) -> tuple[tuple[str, int, int], ...]:
+    """The (model, first column, end column) blocks of a :func:`draw_layout`, in order."""
+    layout = dict(layout_items)
+    starts = sorted((c, name) for name, c in layout.items() if name != "total")
+    ends = [c for c, _ in starts[1:]] + [layout["total"]]
+    return tuple((name, c, end) for (c, name), end in zip(starts, ends, strict=True))
+
+
 def draw_uniforms(rng: np.random.Generator, streams: dict[str, np.random.Generator],
                   layout: dict[str, int], n_t: int) -> np.ndarray:
     """(n_t, layout["total"]) uniforms on [0, 1): the paper's two columns from ``rng``, each
     model's columns from its own stream (one row per epoch from each, so a batch draws what
     the same epochs drawn one at a time do)."""
-    starts = sorted((c, name) for name, c in layout.items() if name != "total")
-    ends = [c for c, _ in starts[1:]] + [layout["total"]]
     blocks = [(rng if name == "usarsim" else streams[name]).random((n_t, end - c))
-              for (c, name), end in zip(starts, ends, strict=True)]
+              for name, c, end in _draw_plan(tuple(layout.items()))]
     return blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=1)
 
 
@@ -1286,8 +1300,11 @@ def simulate(
     rows = isinstance(state, ReceiverRows)  # receivers side by side, one epoch each
     if rows:
         streams = state.streams
-        u = np.concatenate([draw_uniforms(r, st, layout, 1)
-                            for r, st in zip(state.rngs, streams, strict=True)])
+        u = np.empty((n_t, layout["total"]))
+        plan = _draw_plan(tuple(layout.items()))
+        for i, (r, st) in enumerate(zip(state.rngs, streams, strict=True)):
+            for name, a, b in plan:  # (draw_uniforms' one row, written in place)
+                (r if name == "usarsim" else st[name]).random(out=u[i, a:b])
         dt_s = t - state.last_t_unix_s
     else:
         streams = state.streams if state.streams is not None else model_streams(rng)
