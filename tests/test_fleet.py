@@ -219,6 +219,51 @@ def test_flood_of_bad_and_unknown_id_messages_is_counted_and_poses_still_arrive(
         provider.close()
 
 
+def test_live_poses_of_many_receivers_at_once_are_each_receivers_own(campus):
+    # LiveProvider.poses_at (all receivers at one epoch) against pose_at one by one: before the
+    # first pose, between poses, after the last (own velocity, finite difference, one pose
+    # held), and beyond the pose timeout.
+    _, _, georef, _ = campus
+
+    class Src:
+        def __init__(self, msgs):
+            self.msgs = msgs
+
+        def poll(self):
+            m, self.msgs = self.msgs, []
+            return m
+
+        def fileno_list(self):
+            return []
+
+        def close(self):
+            pass
+
+    clock = daemon.SimClock(START)
+    off = clock.offset_s
+    msgs = []
+    for rid in range(6):
+        for k in range(1 if rid == 3 else 5):
+            m = {"id": rid, "t": START - off + 0.3 * k - 0.25 * rid, "x": 1.5 * k + rid,
+                 "y": -0.7 * k, "z": 1.5 + 0.01 * rid}
+            if rid == 2:
+                m.update(vx=0.4, vy=-0.1, vz=0.0)
+            msgs.append((json.dumps(m).encode(), 0.0))
+    lp = daemon.LiveProvider(Src(msgs), georef, clock, 1.0, receiver_ids=range(8))
+    lp.pump()
+    ids = list(range(8))  # (6 and 7 never sent a pose)
+    n_valid = []
+    for t in START + np.array([-2.0, 0.05, 0.7, 1.2, 1.31, 1.9, 2.5]):
+        pos, vel, ok = lp.poses_at(float(t), ids)
+        for b, rid in enumerate(ids):
+            p1, v1, ok1 = lp.pose_at(np.array([t]), rid)
+            np.testing.assert_array_equal(pos[b], p1[0])
+            np.testing.assert_array_equal(vel[b], v1[0])
+            assert ok[b] == ok1[0]
+        n_valid.append(int(ok.sum()))
+    assert n_valid[0] == 0 and n_valid[-1] == 0 and max(n_valid) == 6, n_valid
+
+
 # --- the daemon as users run it ----------------------------------------------------------------
 
 

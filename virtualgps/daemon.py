@@ -245,6 +245,50 @@ class LiveProvider:
             self.n_good += 1
             self._tracks.pop(p.receiver_id, None)
 
+    def poses_at(
+        self, t_unix_s: float, receiver_ids: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The poses of several receivers at one simulated time (see :func:`poses_at`): what
+        :meth:`pose_at` gives each, to the bit. An epoch at or after a receiver's last pose (a
+        live stream lags the clock) extrapolates that pose with its velocity (its own, else
+        the last step's), all such receivers at once, as :func:`virtualgps.pose.interpolate`
+        does past a track's end; any other goes through :meth:`pose_at`.
+
+        Returns
+        -------
+        pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+        """
+        n = len(receiver_ids)
+        pos, vel, valid = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        after: list[int] = []
+        tails = []
+        for b, rid in enumerate(receiver_ids):
+            h = self.histories.get(rid)
+            if not h:
+                continue
+            if t_unix_s >= h[-1][0]:
+                after.append(b)
+                tails.append((h[-1], h[-2] if len(h) > 1 else h[-1]))
+            else:
+                pos[b], vel[b], valid[b] = (a[0] for a in self.pose_at(np.array([t_unix_s]), rid))
+        if after:
+            t_last = np.array([last[0] for last, _ in tails])
+            t_prev = np.array([prev[0] for _, prev in tails])
+            p_last = np.array([last[1] for last, _ in tails])
+            p_prev = np.array([prev[1] for _, prev in tails])
+            v_last = np.array([last[2] for last, _ in tails])
+            with np.errstate(invalid="ignore", divide="ignore"):  # (one pose: no step)
+                fd = (p_last - p_prev) / (t_last - t_prev)[:, None]
+            last_v = np.where(np.isnan(v_last), np.where((t_last > t_prev)[:, None], fd, np.nan),
+                              v_last)
+            last_v = np.where(np.isnan(last_v), 0.0, last_v)
+            age = t_unix_s - t_last
+            ok = age <= self.max_gap_s
+            pos[after] = np.where(ok[:, None], p_last + age[:, None] * last_v, np.nan)
+            vel[after] = np.where(ok[:, None], last_v, np.nan)
+            valid[after] = ok
+        return pos, vel, valid
+
     def pose_at(
         self, t_unix_s: np.ndarray, receiver_id: int = 0
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
