@@ -445,3 +445,17 @@ def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
     assert b"$PMTK001,314,3*36" in dev1 and b"$PMTK001" not in dev0
     assert b"$GPGSV" not in dev1[mark1:] and dev1[mark1:].count(b"$GPGGA") >= 8
     assert dev0[mark0:].count(b"$GPGSV") >= 8
+
+
+@pytest.mark.e2e
+def test_serial_port_runs_one_receiver_and_a_fleet_gets_ptys(tmp_path):
+    run = [sys.executable, "-m", "virtualgps", "run", "--serial", "loop://", "--poses", "demo",
+           "--scene", "none", "--duration", "2"]
+    one = subprocess.run(run, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert one.returncode == 0, one.stderr
+    assert one.stdout.splitlines()[0] == "device: loop://"
+    assert "stopped after 2 epochs" in one.stderr or "stopped after 3 epochs" in one.stderr
+    two = subprocess.run([*run, "--receivers", "2"], capture_output=True, text=True, timeout=60,
+                         cwd=tmp_path)
+    assert two.returncode == 2 and two.stderr.strip().endswith(
+        "--serial drives one receiver; a fleet gets ptys (--link PATTERN)")

@@ -3,7 +3,7 @@
 Usage:
 
     python tools/bench_fleet.py [--receivers 1,10,100,1000] [--seconds 20] [--rate 10]
-        [--scene none|default] [--config FILE]
+        [--scene none|default] [--config FILE] [--poses demo|udp]
 
 For each fleet size: ``virtualgps run --receivers N --poses demo`` at ``--rate`` Hz and
 115200 baud, and one reader process that opens every device and reads them all through one
@@ -15,6 +15,10 @@ and 99th percentile over all devices and epochs).
 
 The time tag is the epoch's simulated UTC, here the wall clock (no --start-time): the delay is
 what a client sees between the epoch's instant and its first byte.
+
+``--poses udp``: instead of the scripted walk, a sender process sends every receiver's pose
+over UDP at the output rate (``{"id": i, "t": now, "x": ..., "y": ..., "z": ...}``, each robot
+on a circle of its own), as a simulator would.
 """
 
 from __future__ import annotations
@@ -64,6 +68,32 @@ print(json.dumps(first))
 '''
 
 
+SENDER = r'''
+import json, math, socket, sys, time
+port, n, rate = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+k = 0
+t0 = time.time()
+while True:
+    now = time.time()
+    for i in range(n):
+        a = 0.05 * now + i
+        msg = {"id": i, "t": now, "x": 30.0 * math.cos(a) + (i % 40) - 20.0,
+               "y": 30.0 * math.sin(a) + (i // 40) - 12.0, "z": 1.5}
+        s.sendto(json.dumps(msg).encode(), ("127.0.0.1", port))
+    k += 1
+    time.sleep(max(0.0, t0 + k / rate - time.time()))
+'''
+
+
+def free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process so far (all threads)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -74,11 +104,18 @@ def tag_s(field: str) -> float:
     return int(field[:2]) * 3600 + int(field[2:4]) * 60 + float(field[4:])
 
 
-def bench(n: int, seconds: float, rate: float, scene: str, cfg: str | None) -> dict:
+def bench(n: int, seconds: float, rate: float, scene: str, cfg: str | None,
+          poses: str = "demo") -> dict:
     """One fleet size; returns its figures."""
+    sender = None
+    spec = "demo"
+    if poses == "udp":
+        port = free_udp_port()
+        spec = f"udp://127.0.0.1:{port}"
+        sender = subprocess.Popen([sys.executable, "-c", SENDER, str(port), str(n), str(rate)])
     with tempfile.TemporaryDirectory() as tmp:
         args = [sys.executable, "-m", "virtualgps", "run", "--receivers", str(n), "--poses",
-                "demo", "--rate", str(rate), "--baud", "115200", "--link",
+                spec, "--rate", str(rate), "--baud", "115200", "--link",
                 str(Path(tmp) / "gps{id}"), "--duration", str(seconds + 30)]
         if scene != "default":
             args += ["--scene", scene]
@@ -102,6 +139,9 @@ def bench(n: int, seconds: float, rate: float, scene: str, cfg: str | None) -> d
         finally:
             proc.terminate()
             proc.wait(30)
+            if sender is not None:
+                sender.kill()
+                sender.wait()
     first = json.loads(out)
     day = np.floor(w0 / 86400.0) * 86400.0
     delays, shares = [], []
@@ -132,10 +172,13 @@ def main() -> None:
     ap.add_argument("--scene", default="none", help="'none' (open sky), 'default' (Magdeburg) "
                     "or a scene path")
     ap.add_argument("--config", help="a config file of profile overrides (e.g. every effect)")
+    ap.add_argument("--poses", choices=("demo", "udp"), default="demo",
+                    help="the scripted walk, or every receiver's pose sent over UDP")
     args = ap.parse_args()
     for n in (int(x) for x in args.receivers.split(",")):
-        r = bench(n, args.seconds, args.rate, args.scene, args.config)
-        print(f"{n:5d} receivers at {args.rate:g} Hz (scene {args.scene}): daemon "
+        r = bench(n, args.seconds, args.rate, args.scene, args.config, args.poses)
+        print(f"{n:5d} receivers at {args.rate:g} Hz (scene {args.scene}, poses {args.poses}): "
+              "daemon "
               f"{r['cores']:.2f} cores ({r['ms_per_receiver_epoch']:.3f} ms per receiver-epoch)"
               f"; worst device got {100 * r['worst_device_share']:.1f} % of epochs; first byte "
               f"{r['delay_median_ms']:.1f} ms after the tag (p99 {r['delay_p99_ms']:.1f} ms); "

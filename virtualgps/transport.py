@@ -1021,7 +1021,8 @@ class SerialDevice(OutputDevice):
             return None
         try:
             return self._serial.fileno()
-        except (AttributeError, NotImplementedError, serial.SerialException):
+        except (AttributeError, NotImplementedError, OSError, ValueError,
+                serial.SerialException):  # (pyserial's URL handlers: io.UnsupportedOperation)
             return None
 
     def close(self) -> None:

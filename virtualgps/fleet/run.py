@@ -130,6 +130,7 @@ def build_fleet(
     t_guess = daemon.SimClock(t_start).now_unix_s()  # (for the sky-time policy)
     rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t_guess)
            for key, c in cfgs.items()}
+    fmts = {key: nmea.NmeaFormat.from_dict(c.profile.nmea) for key, c in cfgs.items()}
     unknown = sorted(set(tracks or ()) - set(ids))
     if unknown:
         log.warning("%s has poses for receivers %s, which this run does not have: ignored",
@@ -143,8 +144,7 @@ def build_fleet(
         for m in members:
             p = cfgs[(m.profile, m.baud)].profile
             if serial_port:
-                devices.append(transport.SerialDevice(serial_port,
-                                                      m.baud or flags.get("baud") or p.baud))
+                devices.append(transport.SerialDevice(serial_port, p.baud))
             else:
                 pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
                 waiter.add(transport.PtyDevice(Path(m.link), baud=p.baud, threaded=False,
@@ -155,9 +155,9 @@ def build_fleet(
         t0 = clock.now_unix_s()
         provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock, t0)
         for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
-            p = cfgs[(m.profile, m.baud)].profile
+            key = (m.profile, m.baud)
             receivers.append(daemon.LiveReceiver(
-                rxs[(m.profile, m.baud)], dev, nmea.NmeaFormat.from_dict(p.nmea), clock,
+                rxs[key], dev, fmts[key], clock,
                 np.random.default_rng(m.seed), receiver_id=m.receiver_id,
                 antenna_offset_enu_m=np.array(m.antenna_offset_enu_m), t_first_unix_s=t0))
     except BaseException:
