@@ -228,6 +228,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from virtualgps import daemon
     from virtualgps.fleet.run import build_fleet
 
+    # (Before the devices exist: a signal while a thousand are being made still removes them.)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     fleet = build_fleet(_flags(args), args.poses, args.link, args.receivers, args.fleet,
                         args.serial, args.topic)
     receivers = fleet.receivers
@@ -235,10 +239,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         dev = r.device
         print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
               flush=True)
-
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     if args.duration:
         timer = threading.Timer(args.duration, stop.set)
         timer.daemon = True
