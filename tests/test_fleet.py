@@ -421,8 +421,9 @@ def test_stalled_and_reconnecting_devices_do_not_delay_the_others(tmp_path):
 
 @pytest.mark.e2e
 def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
-    # Each receiver has its own MTK command link: GSV switched off on device 1 (PMTK314) stays
-    # on for device 0, and only device 1 answers.
+    # Each receiver has its own MTK command link: GSV switched off on device 1 (PMTK314) and
+    # its fix interval set to 1 s (PMTK220) leave device 0 at 5 Hz with GSV; only device 1
+    # answers.
     proc, links = start_fleet(tmp_path, "--receivers", "2", "--poses", "demo", "--rate", "5",
                               "--scene", "none", "--link", str(tmp_path / "gps{id}"), n_lines=2)
     try:
@@ -434,6 +435,7 @@ def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
         time.sleep(1.0)
         os.write(fd, nmea.format_sentence("PMTK314," + ",".join(
             ["0", "1", "1", "1", "1", "0"] + ["0"] * 13)).encode("ascii"))
+        os.write(fd, nmea.format_sentence("PMTK220,1000").encode("ascii"))  # 5 Hz -> 1 Hz
         time.sleep(2.5)
         mark0, mark1 = len(quiet.data), len(talker.data)
         time.sleep(2.0)
@@ -442,9 +444,10 @@ def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
     finally:
         code, err = stop(proc)
     assert code == 0, err
-    assert b"$PMTK001,314,3*36" in dev1 and b"$PMTK001" not in dev0
-    assert b"$GPGSV" not in dev1[mark1:] and dev1[mark1:].count(b"$GPGGA") >= 8
-    assert dev0[mark0:].count(b"$GPGSV") >= 8
+    assert b"$PMTK001,314,3*36" in dev1 and b"$PMTK001,220,3" in dev1
+    assert b"$PMTK001" not in dev0
+    assert b"$GPGSV" not in dev1[mark1:] and 1 <= dev1[mark1:].count(b"$GPGGA") <= 3
+    assert dev0[mark0:].count(b"$GPGSV") >= 8 and dev0[mark0:].count(b"$GPGGA") >= 8
 
 
 @pytest.mark.e2e
