@@ -1,9 +1,11 @@
-"""The live loop: one epoch per period on absolute ticks of the simulated clock.
+"""The live loop: one epoch per period on absolute ticks of the simulated clock, for one
+receiver or a fleet.
 
-Epochs fall on whole multiples of 1/rate of simulated UTC. Each epoch interpolates the pose to
-the epoch time, runs :func:`virtualgps.receiver.simulate` on that one epoch (the code replay runs
-on thousands), renders NMEA and hands it to the device, which never blocks. Pose messages are
-read whenever they arrive, between epochs.
+Epochs fall on whole multiples of 1/rate of simulated UTC. Each epoch interpolates the poses to
+the epoch time, runs :func:`virtualgps.receiver.simulate` on that one epoch of every receiver
+due (the receivers as rows; the code replay runs on thousands of epochs), renders NMEA and
+hands it to the devices, which never block. Pose messages and the clients' commands are read
+whenever they arrive, between epochs.
 """
 
 from __future__ import annotations
