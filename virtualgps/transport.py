@@ -333,8 +333,9 @@ class PtyDevice(OutputDevice):
 
     The slave side is put in raw 8N1 mode with ``baud`` in its termios, made readable and
     writable by any user (as gpsd's gpsfake does), and reached through a stable symlink. A writer
-    thread sends queued epochs at ``baud / 10`` bytes per second (8N1: 10 bits per byte) in small
-    slices at absolute wake times; ``write_epoch`` only appends to a bounded queue.
+    (a thread of its own, or the owner's event loop calling :meth:`step`) sends queued epochs at
+    ``baud / 10`` bytes per second (8N1: 10 bits per byte) in small slices at absolute wake
+    times; ``write_epoch`` only appends to a bounded queue.
 
     Linux pty behaviour this relies on (verified on Linux 6.x, see tests/test_transport.py):
 
