@@ -183,6 +183,49 @@ def test_rows_give_the_bytes_of_one_receiver_simulated_epoch_by_epoch(campus):
     assert bytes(out) == fleet[3]
 
 
+class CommandSink(Sink):
+    """A device whose client writes ``command`` once ``after`` epochs have been written."""
+
+    def __init__(self, after: int, command: bytes) -> None:
+        super().__init__()
+        self.after, self.command = after, command
+
+    def read_available(self) -> bytes:
+        if self.command and self.data.count(b"$GPGGA") >= self.after:
+            out, self.command = self.command, b""
+            return out
+        return b""
+
+
+def test_a_restart_of_one_receiver_leaves_the_others_as_they_were(campus):
+    # A cold start (PMTK103) on receiver 1 mid-run: it loses its fix for the start's TTFF,
+    # while receivers 0 and 2, simulated in the same batch, emit what they emit alone.
+    cfg, scene, georef, eph = campus
+    rx = make_receiver(cfg, scene, georef, eph, START)
+    fmt = nmea.NmeaFormat.from_dict(rx.profile.nmea)
+    clock = FlatOut(START)
+    cold = nmea.format_sentence("PMTK103").encode("ascii")
+
+    def members(ids):
+        return [daemon.LiveReceiver(
+            rx, CommandSink(150, cold) if rid == 1 else Sink(), fmt, clock,
+            np.random.default_rng(30 + rid), receiver_id=rid, t_first_unix_s=START)
+            for rid in ids]
+
+    provider = daemon.ReceiverPoses({rid: walk(rid) for rid in range(3)})
+    fleet = members([0, 1, 2])
+    daemon.run_receivers(fleet, provider, clock, threading.Event(), max_epochs=300)
+    for rid in (0, 2):
+        alone = members([rid])
+        daemon.run_receivers(alone, provider, clock, threading.Event(), max_epochs=300)
+        assert bytes(alone[0].device.data) == bytes(fleet[rid].device.data)
+    quality = [ln.split(b",")[6] for ln in bytes(fleet[1].device.data).split(b"\r\n")
+               if ln.startswith(b"$GPGGA")]
+    assert quality[140:150] == [b"1"] * 10  # fixed before the command
+    assert b"1" not in quality[152:200]  # no fix through the cold start's first seconds
+    assert b"$PMTK010,001" in bytes(fleet[1].device.data)[40:]  # restarted: power-up again
+
+
 # --- the pose source: ids, a flood of bad messages -------------------------------------------
 
 
