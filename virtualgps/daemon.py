@@ -102,11 +102,15 @@ class _KnownPoses:
 
 
 class TrackProvider(_KnownPoses):
-    """A pose log (or any PoseTrack in scene ENU) replayed in real time from ``t0_unix_s``."""
+    """A pose log (or any PoseTrack in scene ENU) replayed in real time: its time
+    ``t_first_unix_s`` (default: its first pose's) at simulated ``t0_unix_s``."""
 
-    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
+    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float,
+                 t_first_unix_s: float | None = None) -> None:
         self.track = track
-        self.shift_s = t0_unix_s - float(track.t_unix_s[0]) if len(track) else 0.0
+        if t_first_unix_s is None:
+            t_first_unix_s = float(track.t_unix_s[0]) if len(track) else t0_unix_s
+        self.shift_s = t0_unix_s - t_first_unix_s
         self.max_gap_s = max_gap_s
 
     def pose_at(

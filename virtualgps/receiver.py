@@ -858,13 +858,13 @@ def position_errors(
             el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
             x0 = _gm_start(state.gm_m, n_sat)
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
-            gm_state = gm if x0.ndim == 2 else gm[-1]
+            gm_state = _carried(gm, x0)
             corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
         else:
             x0 = _gm_start(state.gm_m, 3)
             sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
             gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
-            gm_state = gm if x0.ndim == 2 else gm[-1]
+            gm_state = _carried(gm, x0)
             enu += gm
             var += sig**2
             modelled[:] = True
@@ -888,7 +888,7 @@ def position_errors(
             # Unit processes, one per satellite, running whether or not it is seen; the sigma
             # follows the elevation and the antenna's distance to the walls epoch by epoch.
             x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z)
-            mp_state = x if x0.ndim == 2 else x[-1]
+            mp_state = _carried(x, x0)
             sigma_mp = errors.multipath_sigma_m(sky.el_deg, sky.wall_dist_m, mp.sigma_m,
                                                 mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
             # Line of sight only: a blocked satellite arrives, if at all, off a wall (nlos).
@@ -961,7 +961,7 @@ def velocity_errors(
     k = np.flatnonzero(used.sum(axis=1) == 3)
     if k.size:  # a 2D fix: east/north/clock drift
         e[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
-    return np.where(np.isfinite(e), e, 0.0), x if x0.ndim == 2 else x[-1]
+    return np.where(np.isfinite(e), e, 0.0), _carried(x, x0)
 
 
 def carry_held_height(
@@ -1070,9 +1070,8 @@ def tracked_cn0(
     tracked, run = signals.track(cn0, ct.acq_dbhz, ct.track_dbhz, reacq, tracked0, run0)
     out = np.where(tracked, cn0, np.nan)
     usable = tracked & (cn0 - fade >= ct.use_dbhz) if ct.use_dbhz > 0.0 else tracked
-    if rows:
-        return out, usable, {"fade_db": fade, "tracked": tracked, "acq_run": run}
-    return out, usable, {"fade_db": fade[-1], "tracked": tracked[-1], "acq_run": run}
+    return out, usable, {"fade_db": _carried(fade, fade0), "tracked": _carried(tracked, tracked0),
+                         "acq_run": run}
 
 
 def nav_filter(
@@ -1186,6 +1185,12 @@ def output_stage(
         out = np.where(slow[:, None], held, out)
         update["hold_enu_m"] = out[-1].copy() if slow.size and slow[-1] else None
     return out - truth_enu_m, update
+
+
+def _carried(x: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """The state a batch leaves for the next: its last epoch's row, or, for receivers side by
+    side (``x0`` one row per receiver, :class:`ReceiverRows`), every row."""
+    return x if x0.ndim == 2 else x[-1]
 
 
 def _gm_start(carried: np.ndarray | None, n: int) -> np.ndarray:

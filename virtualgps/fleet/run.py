@@ -153,7 +153,10 @@ def build_fleet(
         # the first epoch is the first on the grid after it, however long the set-up took.
         clock = daemon.SimClock(t_start)
         t0 = clock.now_unix_s()
-        provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock, t0)
+        # Logs and the demo walk start at --start-time exactly (else now): a receiver's poses
+        # are then the same in every run that starts there, to the bit.
+        provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock,
+                             t0 if t_start is None else t_start)
         for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
             key = (m.profile, m.baud)
             receivers.append(daemon.LiveReceiver(
@@ -196,9 +199,5 @@ def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s
     # A fleet's log keeps its receivers' timing: all are replayed from the earliest pose.
     scene_tracks = {rid: track_in_scene(tr, georef) for rid, tr in tracks.items() if rid in ids}
     t_first = min((float(tr.t_unix_s[0]) for tr in scene_tracks.values()), default=0.0)
-    out = {}
-    for rid, tr in scene_tracks.items():
-        p = daemon.TrackProvider(tr, t0, max_gap_s)
-        p.shift_s = t0 - t_first
-        out[rid] = p
-    return daemon.ReceiverPoses(out)
+    return daemon.ReceiverPoses({
+        rid: daemon.TrackProvider(tr, t0, max_gap_s, t_first) for rid, tr in scene_tracks.items()})
