@@ -345,6 +345,31 @@ class Receiver:
                                           self.scene.face_object[sel])
                 _FACADES[id(self.scene)] = (self.scene, facades)
         object.__setattr__(self, "facades", facades)
+        prepare = getattr(self.scene, "prepare", None)  # (a Scene; an Occluder may lack it)
+        if prepare is not None:
+            prepare(sky_ray_classes(self.profile))
+
+
+def sky_ray_classes(profile: Profile) -> tuple[str, ...]:
+    """The scene classes :func:`compute_sky` casts rays against: the direct paths' blockers
+    first (foliage blocks as the paper has it unless the foliage model attenuates), then the
+    foliage (its attenuation) and the occluders (reflections off walls) where modelled.
+
+    Parameters
+    ----------
+    profile : the receiver's profile
+
+    Returns
+    -------
+    classes : query class names (``scene.QueryClass``), the direct paths' first
+    """
+    foliage_blocks = profile.sky.foliage == "block" and not profile.foliage.enabled
+    classes = ["solid" if foliage_blocks else "occluder"]
+    if profile.foliage.enabled:
+        classes.append("foliage")
+    if (profile.nlos.enabled or profile.multipath.enabled) and "occluder" not in classes:
+        classes.append("occluder")
+    return tuple(classes)
 
 
 @dataclass(frozen=True)
@@ -599,8 +624,7 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         idx = np.nonzero(risen)
         dirs = u_ecef[idx] @ rx.origin_rot.T
         origins = ant[idx[:-1]]  # (the antenna of each ray's epoch)
-        foliage_blocks = rx.profile.sky.foliage == "block" and not rx.profile.foliage.enabled
-        hit = rx.scene.blocked(origins, dirs, cls="solid" if foliage_blocks else "occluder")
+        hit = rx.scene.blocked(origins, dirs, cls=sky_ray_classes(rx.profile)[0])
         if rx.profile.foliage.enabled:
             fol = rx.profile.foliage
             path_m = signals.foliage_path_m(rx.scene, origins, dirs, fol.billboard_m)

@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -167,7 +168,7 @@ class Scene:
     """A georeferenced mesh with classified objects, and line-of-sight queries against it.
 
     Make one with :func:`load_scene` or :meth:`Scene.open_sky`. Immutable; the ray engines are
-    built once at construction and shared by :meth:`with_georef`.
+    built once, at their first query or :meth:`prepare`, and shared by :meth:`with_georef`.
 
     Attributes
     ----------
@@ -204,7 +205,8 @@ class Scene:
     demo_speed_mps: float = 1.4
     backend: Literal["embree", "numpy"] = "embree"
     nudge_m: float = field(init=False, default=NUDGE_MIN_M)
-    # Ray engines by query class; passed in only by with_georef, which shares them.
+    # Ray engines by query class (and, under "_device", the Embree device they share); passed
+    # in only by with_georef, which shares them.
     _engines: dict[str, Any] | None = field(default=None, repr=False, compare=False)
     _top_m: float = field(init=False, repr=False, default=0.0)
 
@@ -218,31 +220,40 @@ class Scene:
         object.__setattr__(self, "nudge_m", nudge)
         object.__setattr__(self, "_top_m", float(verts[:, 2].max()) if len(verts) else 0.0)
         if self._engines is None:
-            object.__setattr__(self, "_engines", self._build_engines())
+            # Built on first use, class by class (a run casts against two or three of the five:
+            # building them all cost a short replay ~0.1 s); with_georef shares this dict.
+            object.__setattr__(self, "_engines", {})
 
-    def _build_engines(self) -> dict[str, Any]:
-        """One engine per query class with faces; a class without faces gets no engine."""
+    def prepare(self, classes: Iterable[QueryClass]) -> None:
+        """Build the ray engines of these query classes now, not at their first query (a
+        daemon's first epoch should not wait for a BVH).
+
+        Parameters
+        ----------
+        classes : query class names (see ``QueryClass``)
+        """
+        for cls in classes:
+            self._engine(cls)
+
+    def _build_engine(self, name: str) -> Any:
+        """The engine of one query class, None for a class without faces."""
         face_class = self.face_class
-        device = None
-        if self.backend == "embree":
+        if name == "all":
+            sel = self.faces
+        elif name == "solid":
+            sel = self.faces[face_class != CLASS_NAMES.index("ignore")]
+        else:
+            sel = self.faces[face_class == CLASS_NAMES.index(name)]
+        if len(sel) == 0:
+            return None
+        if self.backend == "numpy":
+            return _NumpyEngine(self.vertices_enu_m, sel)
+        device = self._engines.get("_device")
+        if device is None:
             from embreex.rtcore import EmbreeDevice
 
-            device = EmbreeDevice()  # one device shared by the class scenes
-        engines: dict[str, Any] = {}
-        for name in _QUERY_CLASSES:
-            if name == "all":
-                sel = self.faces
-            elif name == "solid":
-                sel = self.faces[face_class != CLASS_NAMES.index("ignore")]
-            else:
-                sel = self.faces[face_class == CLASS_NAMES.index(name)]
-            if len(sel) == 0:
-                continue
-            if self.backend == "embree":
-                engines[name] = _EmbreeEngine(self.vertices_enu_m, sel, device)
-            else:
-                engines[name] = _NumpyEngine(self.vertices_enu_m, sel)
-        return engines
+            device = self._engines["_device"] = EmbreeDevice()  # shared by the class scenes
+        return _EmbreeEngine(self.vertices_enu_m, sel, device)
 
     # -- construction ------------------------------------------------------------------------
 
@@ -349,7 +360,10 @@ class Scene:
     def _engine(self, cls: str) -> Any:
         if cls not in _QUERY_CLASSES:
             raise ValueError(f"cls must be one of {_QUERY_CLASSES}, not {cls!r}")
-        return self._engines.get(cls) if self._engines else None
+        engines = self._engines
+        if cls not in engines:
+            engines[cls] = self._build_engine(cls) if len(self.faces) else None
+        return engines[cls]
 
     def blocked(
         self,

@@ -221,8 +221,11 @@ class Facades:
         base = self.offset_m[:, None] * self.normal[:, :2]
         n_pts = np.maximum(1, np.ceil((ends_s[:, 1] - ends_s[:, 0]) / INDEX_STEP_M)).astype(int)
         owner = np.repeat(np.arange(n_planes), n_pts + 1)
-        frac = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n_pts]) if n_planes else \
-            np.zeros(0)
+        # np.linspace(0, 1, k + 1) of each plane, at once (the same numbers: i * (1 / k), the
+        # last exactly 1; a plane at a time cost a replay's start-up 0.03 s)
+        i_pt = _ranges(n_pts + 1)
+        frac = i_pt * (1.0 / n_pts[owner])
+        frac[np.cumsum(n_pts + 1) - 1] = 1.0
         pos = ends_s[owner, 0] + frac * (ends_s[owner, 1] - ends_s[owner, 0])
         self.index_xy = base[owner] + pos[:, None] * along[owner]
         self.index_owner = owner

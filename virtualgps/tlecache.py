@@ -17,8 +17,6 @@ import json
 import logging
 import os
 import time
-import urllib.error
-import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,6 +71,9 @@ def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
     VirtualGPSError
         one line naming the URL: unreachable, an HTTP error, too large, or not a GPS TLE set
     """
+    import urllib.error  # (here: every run reads the cache; only a fetch needs http, 15 ms)
+    import urllib.request
+
     folder = cache or cache_dir()
     try:
         with urllib.request.urlopen(url, timeout=timeout_s) as resp:  # noqa: S310 (user's URL)
