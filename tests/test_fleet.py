@@ -494,6 +494,38 @@ def test_a_command_on_one_device_changes_that_receiver_alone(tmp_path):
 
 
 @pytest.mark.e2e
+def test_an_idle_daemon_answers_at_once_and_stops_without_waiting_for_its_epoch(tmp_path):
+    # At 1 Hz the loop sleeps until its next epoch (not in 0.1 s naps): a client's command and
+    # SIGTERM must still end that sleep at once, not at the next epoch up to 1 s later.
+    proc, links = start_fleet(tmp_path, "--poses", "demo", "--rate", "1", "--scene", "none",
+                              "--link", str(tmp_path / "gps{id}"), n_lines=1)
+    try:
+        fd = os.open(links[0], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        reader = Reader(Path(links[0]))
+        reader.start()
+        delays = []
+        for k in range(5):  # at different phases of the second
+            time.sleep(0.27 + 0.11 * k)
+            mark, t0 = len(reader.data), time.monotonic()
+            os.write(fd, nmea.format_sentence("PMTK000").encode("ascii"))
+            while b"$PMTK001,0,3" not in reader.data[mark:] and time.monotonic() - t0 < 3.0:
+                time.sleep(0.002)
+            delays.append(time.monotonic() - t0)
+        time.sleep(0.3)  # mid-period
+        t0 = time.monotonic()
+        code, err = stop(proc)
+        stop_s = time.monotonic() - t0
+        reader.close()
+        os.close(fd)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 0, err
+    assert max(delays) < 0.25, delays
+    assert stop_s < 0.5, stop_s
+
+
+@pytest.mark.e2e
 def test_serial_port_runs_one_receiver_and_a_fleet_gets_ptys(tmp_path):
     run = [sys.executable, "-m", "virtualgps", "run", "--serial", "loop://", "--poses", "demo",
            "--scene", "none", "--duration", "2"]

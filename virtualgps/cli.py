@@ -229,7 +229,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from virtualgps.fleet.run import build_fleet
 
     # (Before the devices exist: a signal while a thousand are being made still removes them.)
-    stop = threading.Event()
+    stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     fleet = build_fleet(_flags(args), args.poses, args.link, args.receivers, args.fleet,
@@ -265,6 +265,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         status.end()
         fleet.close()
+        stop.close()
     for r in receivers:
         link = r.stats.link
         if link is not None and (link.commands or link.bad_checksum):

@@ -10,8 +10,10 @@ whenever they arrive, between epochs.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
 import select
 import threading
 import time
@@ -672,6 +674,31 @@ def tick(
     return out
 
 
+class StopEvent(threading.Event):
+    """A :class:`threading.Event` with a descriptor that turns readable once it is set, so a
+    loop waiting in ``select``/``epoll`` wakes at once (a signal handler's ``set`` would
+    otherwise wait for the loop's next timeout: an idle 1 Hz daemon then had to wake ten
+    times a second just to look at the flag)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+
+    def set(self) -> None:
+        super().set()
+        with contextlib.suppress(OSError):  # (closed: nobody waits any more)
+            os.eventfd_write(self._fd, 1)
+
+    def fileno(self) -> int:
+        """Return the descriptor, readable once set."""
+        return self._fd
+
+    def close(self) -> None:
+        """Close the descriptor."""
+        with contextlib.suppress(OSError):
+            os.close(self._fd)
+
+
 class _SelectWaiter:
     """Waits with ``select`` on the pose source and the devices' client-byte events (devices
     with writer threads of their own: a single receiver's pty, a serial port)."""
@@ -681,12 +708,17 @@ class _SelectWaiter:
 
     def wait(self, deadline_s: float, fds: list[int]) -> None:
         fds = list(fds)
+        blind = False  # a device without a descriptor (pyserial's loop://): look every 0.1 s
         for dev in self.devices:
             get_fd = getattr(dev, "fileno", None)
             fd = get_fd() if get_fd is not None else None
             if fd is not None:
                 fds.append(fd)
+            else:
+                blind = True
         timeout = max(0.0, deadline_s - time.monotonic())
+        if blind:
+            timeout = min(timeout, 0.1)
         if fds:
             select.select(fds, [], [], timeout)
         else:
@@ -756,7 +788,8 @@ def run_receivers(
     members : the receivers
     provider : pose source, ``pose_at(t, receiver_id)``
     clock : the simulated clock
-    stop : set by the signal handlers to end the loop
+    stop : set by the signal handlers to end the loop (a :class:`StopEvent` wakes the loop's
+        waits at once)
     on_epoch : called after each receiver's epoch with the receiver, the Fixes of its batch
         and its row there
     max_epochs : stop once every receiver has emitted this many epochs (tests)
@@ -767,6 +800,10 @@ def run_receivers(
     if waiter is None:
         waiter = _SelectWaiter([m.device for m in members])
     by_device = {id(m.device): m for m in members}
+    # A stop that wakes the wait (StopEvent) lets the loop sleep until the next epoch; a plain
+    # Event is looked at every 0.1 s.
+    stop_fds = [stop.fileno()] if isinstance(stop, StopEvent) else []
+    max_wait_s = math.inf if stop_fds else 0.1
     # An epoch is computed this long before its time and sent at its time: the last ticks'
     # cost (a fleet of a thousand takes tens of milliseconds), so its first byte leaves on time.
     lead_s = 0.0
@@ -781,7 +818,8 @@ def run_receivers(
             deadline = clock.monotonic_at(t_due)
             if deadline - lead_s <= time.monotonic():
                 break
-            waiter.wait(min(deadline - lead_s, time.monotonic() + 0.1), provider.fileno_list())
+            waiter.wait(min(deadline - lead_s, time.monotonic() + max_wait_s),
+                        [*provider.fileno_list(), *stop_fds])
         if stop.is_set():
             break
         due = [m for m in members if m.t_next_unix_s <= t_due + 1e-9]
@@ -790,7 +828,7 @@ def run_receivers(
         spent_s = time.monotonic() - c0
         lead_s = min(1.25 * max(spent_s, 0.8 * lead_s) + 0.002, 0.5 / max(m.rate for m in due))
         while time.monotonic() < deadline and not stop.is_set():
-            waiter.wait(deadline, [])  # (the devices' writers are served meanwhile)
+            waiter.wait(deadline, stop_fds)  # (the devices' writers are served meanwhile)
         lateness = time.monotonic() - deadline
         for group, fixes, data in batches:
             for b, m in enumerate(group):

@@ -827,10 +827,14 @@ class PtyDevice(OutputDevice):
             self._kernel_unread = in_kernel
             self._queue.trim(now_s, in_kernel)
             if not self._queue:
-                # Nothing to send. Bytes the client has still to read must be watched for
-                # going stale; otherwise only a new epoch (the wake event), client bytes or
-                # a hang-up (the master's POLLIN/POLLHUP) can need us.
-                return (_IDLE_POLL_S if in_kernel else _IDLE_ATTACHED_S), next_send_s
+                # Nothing to send. Bytes the client has still to read are watched for going
+                # stale, which only a fresh measurement can tell: sleep until the next one is
+                # due (a 1 Hz daemon woke every 50 ms for nothing); otherwise only a new epoch
+                # (the wake event), client bytes or a hang-up (the master's POLLIN/POLLHUP)
+                # can need us.
+                if in_kernel:
+                    return max(0.0, self._measured_s + _MEASURE_EVERY_S - now_s), next_send_s
+                return _IDLE_ATTACHED_S, next_send_s
             if next_send_s < now_s - self._chunk_s:
                 next_send_s = now_s  # idle or badly late: restart the line clock, no burst
             if next_send_s > now_s:

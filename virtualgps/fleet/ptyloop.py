@@ -108,7 +108,8 @@ class PtyLoop:
         return ready
 
     def wait(self, deadline_s: float, fds: list[int] = ()) -> bool:
-        """Serve the devices until ``deadline_s`` (monotonic) or until one of ``fds`` is readable.
+        """Serve the devices until ``deadline_s`` (monotonic), until one of ``fds`` is readable
+        or until a client's bytes arrive.
 
         Parameters
         ----------
@@ -118,11 +119,16 @@ class PtyLoop:
         Returns
         -------
         bool
-            True if one of ``fds`` became readable before the deadline.
+            True if one of ``fds`` became readable, or a device's client bytes arrived (see
+            :meth:`take_client_ready`; only when none were waiting already), before the
+            deadline.
         """
         self._sync_extra(list(fds))
+        had_client_bytes = bool(self.client_ready)
         while True:
             self.run_due()
+            if self.client_ready and not had_client_bytes:
+                return True  # (a command to answer now, not at the next epoch)
             now_s = time.monotonic()
             if now_s >= deadline_s:
                 return False
