@@ -6,13 +6,16 @@ Usage (pin to one core, as the README's figures were measured):
         [--repeat 5]
     taskset -c 0 python tools/bench_replay.py --whole-process [--repeat 5]
     python tools/bench_replay.py --daemon [--seconds 30]
+    taskset -c 0 python tools/bench_replay.py --breakdown
 
 ``--whole-process`` times whole ``virtualgps replay`` processes (interpreter start-up, imports
 and all): a 20-epoch replay, and the 1 h walk at 10 Hz (36,000 epochs) paired, run by run,
 with nmeasim's ``Simulator().generate`` of as many epochs (no physics: a reference for what
 writing NMEA alone costs in Python; ``pip install nmeasim``). ``--daemon`` measures whole
 ``virtualgps run --poses demo`` processes at 1 Hz and 10 Hz, a client reading the device: CPU
-time (all threads, from /proc) per epoch and as a share of a core.
+time (all threads, from /proc) per epoch and as a share of a core. ``--breakdown`` replays the
+hour at 10 Hz in-process and times the seed-independent sky (``receiver.compute_sky``) and its
+parts inside it: what any receiver model on this sky costs before its first random draw.
 
 Replay: a 1 h, 1 Hz walk (the scene's demo loop) written as a JSONL pose log, replayed through
 ``virtualgps replay`` (the CLI's code path, in-process), NMEA to a file: epochs per second of
@@ -187,6 +190,43 @@ def bench_whole_process(repeat: int, profile: str) -> None:
             print("nmeasim not installed (pip install nmeasim): no comparison")
 
 
+def bench_breakdown() -> None:
+    """The hour at 10 Hz replayed in-process (``virtualgps replay``), with the sky's parts
+    timed where they are called (wall seconds, summed over the run's batches)."""
+    from virtualgps import receiver, scene, signals
+
+    spent: dict[str, float] = {}
+
+    def timed(owner: object, name: str, label: str) -> None:
+        inner = getattr(owner, name)
+
+        def wrapper(*args: object, **kwargs: object) -> object:
+            t0 = time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                spent[label] = spent.get(label, 0.0) + time.perf_counter() - t0
+
+        setattr(owner, name, wrapper)
+
+    timed(receiver, "compute_sky", "sky (compute_sky), all of it")
+    timed(receiver, "sat_ecef_near_m", "  satellite positions (SGP4, TEME -> ECEF)")
+    timed(scene.Scene, "blocked", "  Embree any-hit rays (direct paths, scattering's 2nd leg)")
+    timed(scene.Scene, "hit_distance_m",
+          "  Embree nearest-hit rays (foliage, scattering's 1st leg)")
+    timed(signals, "scattered_paths", "  scattering search (its rays included)")
+    with tempfile.TemporaryDirectory() as tmp:
+        poses = Path(tmp) / "walk10.jsonl"
+        write_walk(poses, 1.0, rate_hz=10.0)
+        t0 = time.perf_counter()
+        code = cli_main(["replay", str(poses), "--rate", "10", "--out", str(Path(tmp) / "o.nmea")])
+        total = time.perf_counter() - t0
+    assert code == 0
+    print(f"1 h walk at 10 Hz in-process: {total:.2f} s (imports before it not counted)")
+    for label, sec in spent.items():
+        print(f"{label}: {sec:.2f} s")
+
+
 def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process so far (all its threads), from /proc."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -245,7 +285,12 @@ def main() -> None:
     ap.add_argument("--daemon", action="store_true",
                     help="CPU of whole 'virtualgps run' processes at 1 Hz and 10 Hz")
     ap.add_argument("--seconds", type=float, default=30.0, help="--daemon: measured seconds")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="time the sky and its parts inside a replay of the hour at 10 Hz")
     args = ap.parse_args()
+    if args.breakdown:
+        bench_breakdown()
+        return
     if args.daemon:
         for rate in (1.0, 10.0):
             per = bench_daemon(rate, args.seconds, args.profile)
