@@ -13,7 +13,8 @@ and all): a 20-epoch replay, and the 1 h walk at 10 Hz (36,000 epochs) paired, r
 with nmeasim's ``Simulator().generate`` of as many epochs (no physics: a reference for what
 writing NMEA alone costs in Python; ``pip install nmeasim``). ``--daemon`` measures whole
 ``virtualgps run --poses demo`` processes at 1 Hz and 10 Hz, a client reading the device: CPU
-time (all threads, from /proc) per epoch and as a share of a core. ``--breakdown`` replays the
+time (all threads, from /proc) per epoch and as a share of a core, after a probe of what the
+machine adds to work that follows idle time (:func:`idle_penalty`). ``--breakdown`` replays the
 hour at 10 Hz in-process and times the seed-independent sky (``receiver.compute_sky``) and its
 parts inside it: what any receiver model on this sky costs before its first random draw.
 
@@ -271,6 +272,31 @@ def bench_daemon(rate_hz: float, seconds: float, profile: str) -> float:
     return (c1 - c0) / (seconds * rate_hz)
 
 
+def idle_penalty(pauses_s: tuple[float, ...] = (0.0, 0.09, 1.0), n: int = 14) -> list[float]:
+    """CPU time of a fixed small-numpy workload (~2 ms, like one live epoch) run after each of
+    ``pauses_s`` of sleep (0: back to back), as a daemon at 10 Hz or 1 Hz runs its epochs: what
+    the machine itself adds to work that follows idle time (a VM's vCPU descheduled, caches and
+    clock speed lost), independent of our code. Median of the last ``n`` of ``n + 2`` runs for
+    each pause, seconds."""
+    a = np.random.default_rng(0).random(64)
+
+    def work() -> None:
+        for i in range(200):
+            float(np.sum(a * i))
+
+    out = []
+    for pause in pauses_s:
+        spent = []
+        for _ in range(n + 2):
+            if pause:
+                time.sleep(pause)
+            c0 = time.process_time()
+            work()
+            spent.append(time.process_time() - c0)
+        out.append(float(np.median(spent[2:])))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--profile", default="holux-m1000")
@@ -292,6 +318,10 @@ def main() -> None:
         bench_breakdown()
         return
     if args.daemon:
+        tight_s, after_90ms_s, after_1s_s = idle_penalty()
+        print(f"machine: a fixed workload takes {tight_s * 1e3:.2f} ms of CPU back to back, "
+              f"{after_90ms_s * 1e3:.2f} ms after 90 ms of sleep ({after_90ms_s / tight_s:.1f}x), "
+              f"{after_1s_s * 1e3:.2f} ms after 1 s ({after_1s_s / tight_s:.1f}x)")
         for rate in (1.0, 10.0):
             per = bench_daemon(rate, args.seconds, args.profile)
             print(f"daemon at {rate:g} Hz ({args.profile}, 115200 baud, a client reading): "
