@@ -4,6 +4,8 @@ and after the pose timeout, malformed messages counted and skipped, the demo loo
 from __future__ import annotations
 
 import json
+import os
+import select
 import threading
 from dataclasses import replace
 
@@ -126,3 +128,24 @@ def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     rx3 = daemon.apply_link_settings(rx2, off)
     assert not rx3.profile.sbas.enabled and not rx3.profile.static_hold.enabled
     assert daemon.apply_link_settings(rx3, off) is rx3  # nothing to change
+
+
+def test_stop_event_wakes_a_select_and_never_writes_after_close():
+    stop = daemon.StopEvent()
+    fd = stop.fileno()
+    assert select.select([fd], [], [], 0)[0] == []
+    threading.Timer(0.05, stop.set).start()
+    assert select.select([fd], [], [], 5.0)[0] == [fd]  # (woken by set, long before 5 s)
+    assert stop.is_set()
+    r, w = os.pipe()
+    stop.close()
+    # The closed number given to another file (here a pipe's write end): set must not write to it.
+    try:
+        os.dup2(w, fd)
+        os.set_blocking(r, False)
+        stop.set()
+        with pytest.raises(BlockingIOError):
+            os.read(r, 64)
+    finally:
+        for f in {r, w, fd}:
+            os.close(f)

@@ -686,17 +686,20 @@ class StopEvent(threading.Event):
 
     def set(self) -> None:
         super().set()
-        with contextlib.suppress(OSError):  # (closed: nobody waits any more)
-            os.eventfd_write(self._fd, 1)
+        fd = self._fd
+        if fd >= 0:  # (after close the number may belong to another file: never write to it)
+            with contextlib.suppress(OSError):
+                os.eventfd_write(fd, 1)
 
     def fileno(self) -> int:
         """Return the descriptor, readable once set."""
         return self._fd
 
     def close(self) -> None:
-        """Close the descriptor."""
-        with contextlib.suppress(OSError):
-            os.close(self._fd)
+        """Close the descriptor (a later :meth:`set` still sets the flag)."""
+        fd, self._fd = self._fd, -1
+        if fd >= 0:
+            os.close(fd)
 
 
 class _SelectWaiter:
