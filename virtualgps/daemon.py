@@ -791,8 +791,8 @@ def run_receivers(
     members : the receivers
     provider : pose source, ``pose_at(t, receiver_id)``
     clock : the simulated clock
-    stop : set by the signal handlers to end the loop (a :class:`StopEvent` wakes the loop's
-        waits at once)
+    stop : set by the signal handlers to end the loop (one with a ``fileno``, as
+        :class:`StopEvent`, wakes the loop's waits at once)
     on_epoch : called after each receiver's epoch with the receiver, the Fixes of its batch
         and its row there
     max_epochs : stop once every receiver has emitted this many epochs (tests)
@@ -803,9 +803,10 @@ def run_receivers(
     if waiter is None:
         waiter = _SelectWaiter([m.device for m in members])
     by_device = {id(m.device): m for m in members}
-    # A stop that wakes the wait (StopEvent) lets the loop sleep until the next epoch; a plain
-    # Event is looked at every 0.1 s.
-    stop_fds = [stop.fileno()] if isinstance(stop, StopEvent) else []
+    # A stop with a descriptor to wait on (StopEvent) lets the loop sleep until the next epoch;
+    # a plain Event is looked at every 0.1 s.
+    stop_fileno = getattr(stop, "fileno", None)
+    stop_fds = [stop_fileno()] if stop_fileno is not None else []
     max_wait_s = math.inf if stop_fds else 0.1
     # An epoch is computed this long before its time and sent at its time: the last ticks'
     # cost (a fleet of a thousand takes tens of milliseconds), so its first byte leaves on time.
