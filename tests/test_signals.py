@@ -444,3 +444,16 @@ def test_wall_distance_is_the_brute_force_nearest(layout, max_dist_m):
     # One antenna at a time (the live loop) gives the same numbers as the batch.
     one = [facades.wall_dist_m(ant[i : i + 1], max_dist_m)[0] for i in range(0, len(ant), 7)]
     np.testing.assert_array_equal(one, got[::7])
+
+
+def test_paths_at_equal_loss_up_to_round_off_keep_the_shortest():
+    # Two specular paths (loss 0 but for round-off) and a lossy short one, for query 0; one
+    # path for query 1. The old rule (loss compared to the last bit) kept the 40 m path.
+    query = np.array([0, 0, 0, 1])
+    excess_m = np.array([40.0, 6.0, 1.0, 9.0])
+    loss_db = np.array([1e-10, 3e-10, 2.0, 0.5])
+    best = signals.least_loss_then_shortest(query, excess_m, loss_db)
+    np.testing.assert_array_equal(best, [1, 3])
+    # Losses that really differ still decide before the length does.
+    assert signals.least_loss_then_shortest(query[:3], excess_m[:3],
+                                            np.array([0.3, 0.4, 0.2])).tolist() == [2]
