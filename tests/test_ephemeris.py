@@ -161,18 +161,6 @@ def test_sgp4_error_gives_nan_not_exception(tmp_path):
     r, v = c.sat_state_ecef(t)
     assert np.all(np.isfinite(r[:2])) and np.all(np.isfinite(v[:2]))
     assert np.all(np.isnan(r[2:])) and np.all(np.isnan(v[2:]))
-    sub = c.sat_ecef_m_where(t, np.ones((4, 1), bool))
-    assert np.all(np.isfinite(sub[:2])) and np.all(np.isnan(sub[2:]))
-
-
-def test_propagating_a_subset_gives_the_same_numbers(c2017):
-    t = c2017.epoch_center_unix_s + np.arange(0.0, 7200.0, 7.0)
-    need = np.random.default_rng(1).random((t.size, len(c2017))) < 0.4
-    sub = c2017.sat_ecef_m_where(t, need)
-    # Bit for bit: a replay that propagates only some satellites prints what one that
-    # propagates all of them would.
-    np.testing.assert_array_equal(sub[need], c2017.sat_ecef_m(t)[need])
-    assert np.isnan(sub[~need]).all()
 
 
 def test_azel_matches_skyfield():

@@ -15,7 +15,6 @@ from virtualgps.receiver import (
     ReceiverState,
     box_muller,
     dop,
-    sat_ecef_near_m,
     select_used,
     simulate,
     usarsim_sigma_m,
@@ -749,32 +748,6 @@ def test_nav_filter_keeps_batch_equal_to_epoch_by_epoch_across_a_gap():
         for name in ("lat_deg", "lon_deg", "alt_msl_m"):
             np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i])
     np.testing.assert_array_equal(state.nav_enu_m, end.nav_enu_m)
-
-
-def test_long_batches_hold_only_satellites_well_below_the_horizon():
-    import pymap3d
-
-    from virtualgps.ephemeris import BUNDLED_EPHEMERIS_DIR, load_tle
-
-    eph = load_tle(BUNDLED_EPHEMERIS_DIR / "gps-ops-2017-03-26.tle")
-    t = eph.epoch_center_unix_s + np.arange(0.0, 6 * 3600.0, 1.0)
-    # Two antennas: one still at the georeference, one driving 100 km north at 30 m/s.
-    lat = np.stack([np.full(t.size, GEOREF.lat0_deg),
-                    GEOREF.lat0_deg + np.minimum(30.0 * (t - t[0]), 1e5) / 111e3])
-    ant = geodesy.geodetic_to_ecef(lat, GEOREF.lon0_deg, 100.0)  # (2, n_t, 3)
-    near = sat_ecef_near_m(eph, t, ant)
-    exact = eph.sat_ecef_m(t)
-    held = (near != exact).any(axis=-1)  # (n_t, n_sat)
-    assert held.mean() > 0.3  # most of the SGP4 work below the horizon is skipped
-    for k in range(2):
-        _, el_exact, _ = pymap3d.ecef2aer(*np.moveaxis(exact, -1, 0), lat[k][:, None],
-                                          GEOREF.lon0_deg, 100.0)
-        _, el_held, _ = pymap3d.ecef2aer(*np.moveaxis(near, -1, 0), lat[k][:, None],
-                                         GEOREF.lon0_deg, 100.0)
-        assert el_exact[held].max() < -4.0  # only satellites far below are held ...
-        assert el_held[held].max() < 0.0  # ... and stay below the horizon where held
-    # Short batches (the live loop's epoch) are exact throughout.
-    np.testing.assert_array_equal(sat_ecef_near_m(eph, t[:10], ant[:, :10]), exact[:10])
 
 
 def test_first_order_recursion_batch_equals_its_epochs_to_the_bit():

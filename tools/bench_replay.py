@@ -194,7 +194,7 @@ def bench_whole_process(repeat: int, profile: str) -> None:
 def bench_breakdown() -> None:
     """The hour at 10 Hz replayed in-process (``virtualgps replay``), with the sky's parts
     timed where they are called (wall seconds, summed over the run's batches)."""
-    from virtualgps import receiver, scene, signals
+    from virtualgps import receiver, satnodes, scene, signals
 
     spent: dict[str, float] = {}
 
@@ -211,7 +211,7 @@ def bench_breakdown() -> None:
         setattr(owner, name, wrapper)
 
     timed(receiver, "compute_sky", "sky (compute_sky), all of it")
-    timed(receiver, "sat_ecef_near_m", "  satellite positions (SGP4, TEME -> ECEF)")
+    timed(satnodes.SatNodes, "sat_ecef_m", "  satellite positions (SGP4 nodes, interpolated)")
     timed(scene.Scene, "blocked", "  Embree any-hit rays (direct paths, scattering's 2nd leg)")
     timed(scene.Scene, "hit_distance_m",
           "  Embree nearest-hit rays (foliage, scattering's 1st leg)")

@@ -37,6 +37,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -329,8 +330,6 @@ class Constellation:
     norad : (n_sat,) int, NORAD catalogue numbers
     epoch_unix_s : (n_sat,) float, each TLE's epoch, UTC Unix seconds
     satrec_array : sgp4.api.SatrecArray over the satellites in ``prn`` order
-    satrec_singles : tuple of n_sat SatrecArray, one per satellite (a subset of the times for
-        each: :meth:`sat_ecef_m_where`)
     source : str, the TLE file it came from
     """
 
@@ -339,8 +338,10 @@ class Constellation:
     norad: NDArray[np.int64]
     epoch_unix_s: F64
     satrec_array: SatrecArray
-    satrec_singles: tuple[SatrecArray, ...]
     source: str
+    # SGP4 costs ~1 us per satellite and epoch on smooth orbits: the receiver interpolates its
+    # positions between nodes (virtualgps.satnodes) instead of propagating every epoch.
+    node_interpolation: ClassVar[bool] = True
 
     def __len__(self) -> int:
         return int(self.prn.shape[0])
@@ -400,34 +401,6 @@ class Constellation:
         sat_ecef_m : (..., n_sat, 3) float, metres, ECEF; NaN where SGP4 failed
         """
         return self.sat_state_ecef(t_unix_s, with_velocity=False)[0]
-
-    def sat_ecef_m_where(self, t_unix_s: ArrayLike, need: np.ndarray) -> F64:
-        """Satellite positions in ECEF, propagated only where needed.
-
-        Each satellite is propagated at its own needed times, with the same SGP4 and rotation
-        as :meth:`sat_ecef_m`, so the positions it gives are the same numbers. A long replay
-        needs the satellites below the horizon only coarsely: this skips most of their SGP4.
-
-        Parameters
-        ----------
-        t_unix_s : (n_t,) float, UTC Unix seconds
-        need : (n_t, n_sat) bool, which satellite at which time
-
-        Returns
-        -------
-        sat_ecef_m : (n_t, n_sat, 3) float, metres, ECEF; NaN where not needed or SGP4 failed
-        """
-        t = np.ascontiguousarray(np.asarray(t_unix_s, dtype=float).reshape(-1))
-        jd, fr = unix_to_jd(t)
-        out = np.full(need.shape + (3,), np.nan)
-        for s, single in enumerate(self.satrec_singles):
-            k = np.flatnonzero(need[:, s])
-            if k.size == 0:
-                continue
-            err, r_km, _ = single.sgp4(np.ascontiguousarray(jd[k]), np.ascontiguousarray(fr[k]))
-            r_ecef, _ = teme_to_ecef(r_km[0] * 1000.0, t[k])
-            out[k, s] = np.where((err[0] != 0)[:, None], np.nan, r_ecef)
-        return out
 
 
 def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constellation:
@@ -523,7 +496,6 @@ def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constella
         norad=norad[keep],
         epoch_unix_s=epoch[keep],
         satrec_array=SatrecArray([satrecs[i] for i in keep]),
-        satrec_singles=tuple(SatrecArray([satrecs[i]]) for i in keep),
         source=str(path),
     )
 

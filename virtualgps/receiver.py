@@ -32,6 +32,7 @@ from virtualgps.records import (
     QUALITY_NONE,
     Fixes,
 )
+from virtualgps.satnodes import SatNodes
 
 
 class Ephemeris(Protocol):
@@ -300,6 +301,7 @@ def initial_state(
 
 
 _FACADES: dict[int, tuple[object, signals.Facades]] = {}  # scene id -> (scene, its walls)
+_SAT_NODES: dict[int, tuple[object, SatNodes]] = {}  # ephemeris id -> (ephemeris, its nodes)
 
 
 @dataclass(frozen=True)
@@ -313,6 +315,9 @@ class Receiver:
     origin_rot : (3, 3) ECEF -> scene ENU rotation (derived; rows E, N, U)
     facades : the scene's reflecting walls when the profile models ``nlos`` or ``multipath``
         (derived)
+    sat_nodes : the ephemeris' positions interpolated between nodes, for an ephemeris that asks
+        for it (``node_interpolation``: SGP4's TLE sets); derived, shared by the receivers of
+        one ephemeris; None: its positions are used as they are
     """
 
     profile: Profile
@@ -323,6 +328,7 @@ class Receiver:
     origin_ecef_m: np.ndarray = field(init=False, repr=False, compare=False)
     origin_rot: np.ndarray = field(init=False, repr=False, compare=False)
     facades: signals.Facades | None = field(init=False, repr=False, compare=False)
+    sat_nodes: SatNodes | None = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         g = self.georef
@@ -345,6 +351,13 @@ class Receiver:
                                           self.scene.face_object[sel])
                 _FACADES[id(self.scene)] = (self.scene, facades)
         object.__setattr__(self, "facades", facades)
+        nodes = None
+        if getattr(self.ephemeris, "node_interpolation", False):
+            nodes = _SAT_NODES.get(id(self.ephemeris), (None, None))[1]
+            if nodes is None:  # one node cache per ephemeris (a fleet's receivers share it)
+                nodes = SatNodes(self.ephemeris)
+                _SAT_NODES[id(self.ephemeris)] = (self.ephemeris, nodes)
+        object.__setattr__(self, "sat_nodes", nodes)
         prepare = getattr(self.scene, "prepare", None)  # (a Scene; an Occluder may lack it)
         if prepare is not None:
             prepare(sky_ray_classes(self.profile))
@@ -536,58 +549,6 @@ def antenna_geodetic(
     return lat, lon, alt, ecef
 
 
-# Long batches propagate each satellite exactly only within PRUNE_MARGIN_DEG of the horizon
-# or above: a GPS satellite's elevation changes by < 0.7 deg a minute (range rate across the
-# line of sight <= 3.9 km/s at >= 20,200 km), so one well below at the start of a PRUNE_STEP_S
-# bin stays below the horizon through it. Below the horizon a satellite only counts as "below",
-# so the coarse position held there changes no output.
-PRUNE_STEP_S = 60.0
-PRUNE_MARGIN_DEG = -5.0
-PRUNE_MIN_EPOCHS = 240
-
-
-def sat_ecef_near_m(eph: Ephemeris, t_unix_s: np.ndarray, ant_ecef_m: np.ndarray) -> np.ndarray:
-    """Satellite positions for the antennas' sky: exact wherever a satellite may be above the
-    horizon, coarse (held from the start of its PRUNE_STEP_S bin) where it is well below.
-
-    Short batches (the live loop) and ephemerides without per-satellite propagation (the
-    lookup table) get every position exactly.
-
-    Parameters
-    ----------
-    eph : the ephemeris
-    t_unix_s : (n_t,) float, UTC seconds (already shifted to the ephemeris' sky)
-    ant_ecef_m : (..., n_t, 3) float, metres, ECEF, the antennas
-
-    Returns
-    -------
-    sat_ecef_m : (n_t, n_sat, 3) float, metres, ECEF
-    """
-    where = getattr(eph, "sat_ecef_m_where", None)
-    if where is None or t_unix_s.size < PRUNE_MIN_EPOCHS:
-        return eph.sat_ecef_m(t_unix_s)
-    # The first epoch of each bin, exactly, for every satellite.
-    # (Runs of one bin, so unsorted times stay correct: each run has its own first epoch.)
-    bins = np.floor((t_unix_s - t_unix_s[0]) / PRUNE_STEP_S).astype(np.int64)
-    starts = np.diff(bins, prepend=bins[0] - 1) != 0
-    first = np.flatnonzero(starts)
-    coarse = eph.sat_ecef_m(t_unix_s[first])  # (n_c, n_sat, 3)
-    # Elevation there above the geocentric horizon (within 0.2 deg of the geodetic one): the
-    # highest over the antennas.
-    ant = ant_ecef_m[..., first, :]
-    up = ant / np.linalg.norm(ant, axis=-1, keepdims=True)
-    d = coarse - ant[..., None, :]
-    sin_el = np.sum(d * up[..., None, :], axis=-1) / np.linalg.norm(d, axis=-1)
-    sin_el = sin_el.reshape((-1,) + sin_el.shape[-2:]).max(axis=0)  # (n_c, n_sat)
-    # NaN (SGP4 failed at the bin start) compares False: propagated exactly, as without pruning.
-    low = sin_el < np.sin(np.radians(PRUNE_MARGIN_DEG))
-    k_bin = np.cumsum(starts) - 1  # each epoch's run, (n_t,)
-    low_t = low[k_bin]
-    out = where(t_unix_s, ~low_t)
-    out[low_t] = coarse[k_bin][low_t]
-    return out
-
-
 def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -> Sky:
     """Satellite directions, the elevation mask and line-of-sight blocking at each epoch.
 
@@ -604,7 +565,8 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
     t = np.atleast_1d(np.asarray(t_unix_s, dtype=float))
     ant = np.asarray(antenna_enu_m, dtype=float)
     lat, lon, alt, ant_ecef = antenna_geodetic(ant, rx)  # ant_ecef (..., n_t, 3)
-    sat_ecef = sat_ecef_near_m(rx.ephemeris, t - rx.sky_shift_s, ant_ecef)  # (n_t, n_sat, 3)
+    positions = rx.ephemeris.sat_ecef_m if rx.sat_nodes is None else rx.sat_nodes.sat_ecef_m
+    sat_ecef = positions(t - rx.sky_shift_s)  # (n_t, n_sat, 3)
     d_ecef = sat_ecef - ant_ecef[..., None, :]  # (..., n_t, n_sat, 3)
     rng_m = np.linalg.norm(d_ecef, axis=-1, keepdims=True)
     u_ecef = d_ecef / rng_m
