@@ -105,3 +105,14 @@ def test_nodes_are_propagated_once_and_the_cache_is_bounded(monkeypatch):
     np.testing.assert_array_equal(np.concatenate([small.sat_ecef_m(t[i : i + 200])
                                                   for i in range(0, t.size, 200)]), first)
     assert len(small._nodes) <= 8 + len(satnodes.NODE_OFFSETS) + 1
+
+
+def test_an_epoch_whose_nodes_are_partly_cached(c2017):
+    # Two batches leave nodes cached around them with a gap between; an epoch whose six
+    # nodes span both and the gap gets the numbers a fresh cache gives.
+    t0 = np.floor(c2017.epoch_center_unix_s / NODE_STEP_S) * NODE_STEP_S
+    nodes = SatNodes(c2017)
+    nodes.sat_ecef_m(np.array([t0 + 10.0, t0 + 13 * NODE_STEP_S]))
+    t = np.array([t0 + 5.5 * NODE_STEP_S])
+    np.testing.assert_array_equal(nodes.sat_ecef_m(t), SatNodes(c2017).sat_ecef_m(t))
+    assert np.isfinite(nodes.sat_ecef_m(t)).all()

@@ -19,6 +19,8 @@ by one: the live daemon and a replay print the same bytes.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 NODE_STEP_S = 60.0
@@ -26,31 +28,32 @@ NODE_OFFSETS = (-2, -1, 0, 1, 2, 3)  # nodes around an epoch, in steps from its 
 MAX_CACHED_NODES = 20_000  # (2 weeks of 60 s nodes, ~15 MB at 32 satellites); then rebuilt
 
 
-def lagrange_weights(s: np.ndarray) -> list[np.ndarray]:
+def lagrange_weights(s: np.ndarray | float) -> list:
     """Weights of the nodes at ``NODE_OFFSETS`` for positions ``s`` steps from the interval's
     start.
 
     w_j(s) = prod over m != j of (s - x_m) / (x_j - x_m), the x the offsets; products taken in
-    a fixed order (elementwise: any batch gives each element the same number).
+    a fixed order, each an IEEE operation on one element: an array and a Python float give
+    each value the same bits.
 
     Parameters
     ----------
-    s : (n,) float, in [0, 1) for the interpolation interval
+    s : (n,) float array, or a float; in [0, 1) for the interpolation interval
 
     Returns
     -------
-    weights : len(NODE_OFFSETS) arrays (n,), summing to 1 up to round-off
+    weights : len(NODE_OFFSETS) arrays (n,) (or floats), summing to 1 up to round-off
     """
     x = NODE_OFFSETS
     factors = [s - xm for xm in x]
     weights = []
     for j, xj in enumerate(x):
-        w = np.ones_like(s)
-        denom = 1.0
-        for m, xm in enumerate(x):
-            if m != j:
-                w = w * factors[m]
-                denom *= xj - xm
+        others = [m for m in range(len(x)) if m != j]
+        w = factors[others[0]]
+        denom = float(xj - x[others[0]])
+        for m in others[1:]:
+            w = w * factors[m]
+            denom *= xj - x[m]
         weights.append(w * (1.0 / denom))
     return weights
 
@@ -100,6 +103,21 @@ class SatNodes:
             the ephemeris has no position at one of its six nodes
         """
         t = np.asarray(t_unix_s, dtype=float).reshape(-1)
+        if t.size == 1 and math.isfinite(t[0]):  # the live epoch: Python floats, same bits
+            t0 = float(t[0])
+            start = math.floor(t0 / self.step_s)
+            s = (t0 - start * self.step_s) / self.step_s  # (see below)
+            first = start + NODE_OFFSETS[0]
+            keys = np.arange(first, first + len(NODE_OFFSETS))
+            try:
+                nodes = [self._nodes[k] for k in keys.tolist()]
+            except KeyError:
+                nodes = list(self._fetch(keys))
+            pos = None
+            for w, node in zip(lagrange_weights(s), nodes, strict=True):
+                term = w * node
+                pos = term if pos is None else pos + term
+            return pos[None]
         out = np.full((t.size, len(self.ephemeris.prn), 3), np.nan)
         ok = np.flatnonzero(np.isfinite(t))
         if ok.size == 0:
