@@ -7,6 +7,7 @@ import csv
 import json
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +127,29 @@ def test_replay_does_not_depend_on_the_chunk_size(replayed, tmp_path, monkeypatc
     small = tmp_path / "small.nmea"
     assert main(["replay", str(poses), "--out", str(small), "--seed", "4"]) == 0
     assert small.read_bytes() == out.read_bytes()
+
+
+def test_an_error_in_the_sky_thread_reaches_the_caller(replayed, tmp_path, monkeypatch):
+    # Multi-chunk replays compute the next chunk's sky in a second thread: its error must
+    # surface, after the chunks before it were written.
+    poses, out, _ = replayed
+    monkeypatch.setattr(replay, "CHUNK_EPOCHS", 7)
+    calls = []
+    real = replay.compute_sky
+
+    def failing(rx, t, ant):
+        calls.append(threading.current_thread().name)
+        if len(calls) == 3:
+            raise RuntimeError("sky failed")
+        return real(rx, t, ant)
+
+    monkeypatch.setattr(replay, "compute_sky", failing)
+    part = tmp_path / "part.nmea"
+    with pytest.raises(RuntimeError, match="sky failed"):
+        main(["replay", str(poses), "--out", str(part), "--seed", "4"])
+    assert all(name.startswith("virtualgps-sky") for name in calls)
+    # The two chunks before it are there, as in the full run.
+    assert part.read_bytes() and out.read_bytes().startswith(part.read_bytes())
 
 
 def test_start_time_shifts_the_log(replayed, tmp_path):
