@@ -81,14 +81,19 @@ class SatNodes:
         nodes : (k, n_sat, 3) float, metres, ECEF (NaN where the ephemeris has none)
         """
         key_list = keys.tolist()
-        missing = [k for k in key_list if k not in self._nodes]
+        cache = self._nodes
+        got = {k: cache.get(k) for k in key_list}
+        missing = [k for k, v in got.items() if v is None]
         if missing:
-            if len(self._nodes) + len(missing) > MAX_CACHED_NODES:
-                self._nodes.clear()
-                missing = key_list
             pos = self.ephemeris.sat_ecef_m(np.asarray(missing, dtype=float) * self.step_s)
-            self._nodes.update(zip(missing, pos, strict=True))
-        return np.stack([self._nodes[k] for k in key_list])
+            new = dict(zip(missing, pos, strict=True))
+            got.update(new)
+            if len(cache) + len(new) > MAX_CACHED_NODES:
+                cache = self._nodes = {}
+            # (Read into ``got`` and rebound, never cleared under a reader: receivers sharing
+            # an ephemeris may compute skies in several threads.)
+            cache.update(new)
+        return np.stack([got[k] for k in key_list])
 
     def sat_ecef_m(self, t_unix_s: np.ndarray) -> np.ndarray:
         """Satellite positions at the given times.
