@@ -175,6 +175,8 @@ class Facades:
     footprint_xy_m : (n, 2, 2) float, metres, scene east/north of the footprint's two ends
     index_start, index_n : (n,) int, each plane's first row in ``index_xy`` and its number of
         index steps (``index_n + 1`` points, evenly spaced from end to end)
+    padded_rows : four (n + 1,) float arrays: normal east, normal north, offset (metres) and top
+        height (metres); entry n is a padding wall without a top
     """
 
     def __init__(
@@ -242,6 +244,10 @@ class Facades:
         self._segments[5] = np.append(self.hi_m[:, 2], -np.inf)
         self.index_n = n_pts
         self.index_start = np.cumsum(n_pts + 1) - (n_pts + 1)
+        # Normal east and north, offset and top height, with a last entry (plane n) for a
+        # padding wall that never counts: no top (scattered_paths' rows of walls).
+        self.padded_rows = (np.append(self.normal[:, 0], 0.0), np.append(self.normal[:, 1], 0.0),
+                            np.append(self.offset_m, 0.0), np.append(self.hi_m[:, 2], -np.inf))
         # Candidate walls per cell of the ground (see candidates): an antenna stays in a cell
         # for many epochs, and the daemon asks once per epoch.
         self._cells: dict[tuple[float, float], dict[int, np.ndarray]] = {}
@@ -626,21 +632,20 @@ def scattered_paths(
     # Each query's walls as a row (padded with a wall that never counts: no top): the first
     # tests run on (query, wall) arrays that broadcast the antenna and the satellite, and only
     # the pairs that pass (about two in five) are gathered.
-    n_planes = len(facades)
-    table = np.full((len(near), max_walls), n_planes, np.intp)
+    table = np.full((len(near), max_walls), len(facades), np.intp)
     for r, w in enumerate(near):
         planes = w.planes[:max_walls]
         table[r, : planes.size] = planes
     jj = table[inverse]  # (m, max_walls)
-    nrm_x = np.append(facades.normal[:, 0], 0.0)[jj]
-    nrm_y = np.append(facades.normal[:, 1], 0.0)[jj]
-    d = ant[:, 0, None] * nrm_x + ant[:, 1, None] * nrm_y - np.append(facades.offset_m, 0.0)[jj]
+    east, north, offset, top = facades.padded_rows
+    nrm_x, nrm_y = east[jj], north[jj]
+    d = ant[:, 0, None] * nrm_x + ant[:, 1, None] * nrm_y - offset[jj]
     side = np.sign(d)
     nx, ny = nrm_x * side, nrm_y * side  # facing the antenna
     un = u[:, 0, None] * nx + u[:, 1, None] * ny  # > 0: the satellite lights the side it sees
     d = np.abs(d)
     k = np.flatnonzero((un > 1e-6) & (d > 0.05) & (d <= max_dist_m)
-                       & (np.append(facades.hi_m[:, 2], -np.inf)[jj] > ant[:, 2, None]))
+                       & (top[jj] > ant[:, 2, None]))
     q, j = k // max_walls, jj.ravel()[k]
     d, nx, ny, un = d.ravel()[k], nx.ravel()[k], ny.ravel()[k], un.ravel()[k]
     ax, ay, az = ant[q, 0], ant[q, 1], ant[q, 2]
