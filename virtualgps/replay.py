@@ -118,24 +118,24 @@ def run_replay(
     if fixes_out is not None:
         fixes_out.write(",".join(FIXES_COLUMNS) + "\n")
 
-    def epochs(a: int) -> tuple:
-        """Chunk a's times, poses and sky (what does not depend on the random numbers)."""
-        t = grid.t_unix_s[a : a + CHUNK_EPOCHS]
+    def epochs(a: int, b: int) -> tuple:
+        """Epochs a to b's times, poses and sky (what does not depend on the random numbers)."""
+        t = grid.t_unix_s[a:b]
         pos, vel, valid = pose.interpolate(track, t - grid.shift_s, max_gap_s)
         return t, pos, vel, valid, compute_sky(rx, t, np.where(valid[:, None], pos, 0.0))
 
-    def write(a: int, t, pos, vel, valid, sky) -> None:
+    def write(b: int, t, pos, vel, valid, sky) -> None:
         nonlocal state
         fixes, state = simulate(rx, t, pos, vel, valid, state, rng, sky=sky)
         out.write(b"".join(nmea.render_batch(fixes, fmt)))
         if fixes_out is not None:
             fixes_out.write(fixes_csv_rows(fixes))
         if progress is not None:
-            progress(min(a + CHUNK_EPOCHS, n), n)
+            progress(b, n)
 
     if n <= CHUNK_EPOCHS:
         if n:
-            write(0, *epochs(0))
+            write(n, *epochs(0, n))
         return n
     keep_freed_memory()
     # The sky of the next chunk is computed in a second thread while this one's errors and
@@ -145,13 +145,15 @@ def run_replay(
     # (walls per cell, satellite nodes, ray engines) see one thread; the bytes are the same.
     from concurrent.futures import ThreadPoolExecutor
 
+    # The first chunk is a quarter of the others: nothing runs beside its sky.
+    ends = [*range(CHUNK_EPOCHS // 4, n, CHUNK_EPOCHS), n]
     with ThreadPoolExecutor(1, thread_name_prefix="virtualgps-sky") as pool:
-        ahead = pool.submit(epochs, 0)
-        for a in range(0, n, CHUNK_EPOCHS):
+        ahead = pool.submit(epochs, 0, ends[0])
+        for a, b in zip(ends[:-1], ends[1:], strict=True):
             chunk = ahead.result()
-            if a + CHUNK_EPOCHS < n:
-                ahead = pool.submit(epochs, a + CHUNK_EPOCHS)
+            ahead = pool.submit(epochs, a, b)
             write(a, *chunk)
+        write(n, *ahead.result())
     return n
 
 
