@@ -6,6 +6,8 @@ uniforms per epoch keeps batch and epoch-by-epoch runs identical.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from virtualgps.constants import WGS84_A_M
@@ -229,6 +231,106 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     return y
 
 
+@dataclass(frozen=True, eq=False)
+class WlsGeometry:
+    """The part of a weighted least-squares fix that depends on the geometry and weights alone
+    (:func:`wls_geometry`): several sets of range errors (position, Doppler) share it.
+
+    g : (..., n_sat, n_states) rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D)
+    w : (..., n_sat) weights 1 / sigma^2 of the used satellites, 0 for the others
+    gw_t : (..., n_states, n_sat) G^T W
+    q : (..., n_states, n_states) (G^T W G)^-1 (of the identity where ``ok`` is False)
+    ok : (...) bool, enough used satellites (and an invertible normal matrix)
+    regular : (...) bool, |det(G^T W G)| > 1e-12
+    n_used : (...) int, used satellites
+    w_held : (...) float, the held height's weight (``held_height``), else None
+    """
+
+    g: np.ndarray
+    w: np.ndarray
+    gw_t: np.ndarray
+    q: np.ndarray
+    ok: np.ndarray
+    regular: np.ndarray
+    n_used: np.ndarray
+    w_held: np.ndarray | None
+
+
+def wls_geometry(
+    los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, n_states: int = 4,
+    held_height: bool = False,
+) -> WlsGeometry:
+    """The geometry part of :func:`wls_fix` (the same parameters), for :func:`wls_solve`."""
+    u = -np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num: slow on tiny arrays)
+    ones = np.ones(los_enu.shape[:-1] + (1,))
+    g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
+    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)
+    gw_t = np.swapaxes(g * w[..., None], -1, -2)
+    # matmul, not einsum: the same sums, ten times faster over thousands of epochs
+    normal = gw_t @ g
+    n_used = used.sum(axis=-1)
+    ok = n_used >= n_states
+    w_held = None
+    if held_height and n_states == 4:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w_held = np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
+        normal[..., 2, 2] += w_held
+        ok = n_used >= 3
+    eye = np.eye(n_states)
+    safe = np.where(ok[..., None, None], normal, eye)
+    regular = np.abs(np.linalg.det(safe)) > 1e-12
+    try:
+        q = np.linalg.inv(safe)
+    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: leave it out
+        ok &= regular
+        q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
+    return WlsGeometry(g, w, gw_t, q, ok, regular, n_used, w_held)
+
+
+def wls_solve(
+    geom: WlsGeometry, used: np.ndarray, range_err_m: np.ndarray,
+    error_sigma_m: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fix's error and sigma for one set of range errors (see :func:`wls_fix`).
+
+    Parameters
+    ----------
+    geom : from :func:`wls_geometry`
+    used : (..., n_sat) bool, as given to it
+    range_err_m : (..., n_sat) float, metres
+    error_sigma_m : (..., n_sat) float, metres, the errors' own standard deviations for the
+        covariance (None: the weights')
+
+    Returns
+    -------
+    err_enu_m, sigma_enu_m : (..., 3) float, metres, as :func:`wls_fix`
+    """
+    g, w, q, ok = geom.g, geom.w, geom.q, geom.ok
+    n_states = q.shape[-1]
+    rhs = geom.gw_t @ np.where(used, range_err_m, 0.0)[..., None]
+    sol = (q @ rhs)[..., 0]
+    # A nearly singular geometry gives a huge solution: treat it as none (PDOP > 1e4).
+    ok_err = ok & np.all(np.abs(sol) < 1e7, axis=-1)
+    err = np.zeros(g.shape[:-2] + (3,))
+    err[..., :2] = sol[..., :2]
+    sigma = np.full(g.shape[:-2] + (3,), np.nan)
+    cov = q
+    if error_sigma_m is not None:
+        wr = w * np.where(used, np.square(error_sigma_m), 0.0)  # r_i / sigma_i^2
+        mid = np.swapaxes(g * (w * wr)[..., None], -1, -2) @ g  # G^T W R W G
+        if geom.w_held is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mid[..., 2, 2] += geom.w_held * wr.sum(axis=-1) / geom.n_used
+        cov = q @ mid @ q
+    diag = np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))
+    sigma[..., :2] = diag[..., :2]
+    if n_states == 4:
+        err[..., 2] = sol[..., 2]
+        sigma[..., 2] = diag[..., 2]
+    return (np.where(ok_err[..., None], err, np.nan),
+            np.where((ok & geom.regular)[..., None], sigma, np.nan))
+
+
 def wls_fix(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, range_err_m: np.ndarray,
     n_states: int = 4, held_height: bool = False, error_sigma_m: np.ndarray | None = None,
@@ -265,48 +367,5 @@ def wls_fix(
     sigma_enu_m : (..., 3) float, metres, sqrt(diag Q) of east, north and up (up NaN for a 2D
         fix); NaN with fewer than ``n_states`` used satellites or a singular geometry
     """
-    u = -np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num: slow on tiny arrays)
-    ones = np.ones(los_enu.shape[:-1] + (1,))
-    g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
-    w = np.where(used, 1.0 / np.square(sigma_m), 0.0)
-    gw_t = np.swapaxes(g * w[..., None], -1, -2)
-    # matmul, not einsum: the same sums, ten times faster over thousands of epochs
-    normal = gw_t @ g
-    rhs = gw_t @ np.where(used, range_err_m, 0.0)[..., None]
-    n_used = used.sum(axis=-1)
-    ok = n_used >= n_states
-    held = held_height and n_states == 4
-    if held:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            w_held = np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
-        normal[..., 2, 2] += w_held
-        ok = n_used >= 3
-    eye = np.eye(n_states)
-    safe = np.where(ok[..., None, None], normal, eye)
-    regular = np.abs(np.linalg.det(safe)) > 1e-12
-    try:
-        q = np.linalg.inv(safe)
-    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: leave it out
-        ok &= regular
-        q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
-    sol = (q @ rhs)[..., 0]
-    # A nearly singular geometry gives a huge solution: treat it as none (PDOP > 1e4).
-    ok_err = ok & np.all(np.abs(sol) < 1e7, axis=-1)
-    err = np.zeros(los_enu.shape[:-2] + (3,))
-    err[..., :2] = sol[..., :2]
-    sigma = np.full(los_enu.shape[:-2] + (3,), np.nan)
-    cov = q
-    if error_sigma_m is not None:
-        wr = w * np.where(used, np.square(error_sigma_m), 0.0)  # r_i / sigma_i^2
-        mid = np.swapaxes(g * (w * wr)[..., None], -1, -2) @ g  # G^T W R W G
-        if held:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mid[..., 2, 2] += w_held * wr.sum(axis=-1) / n_used
-        cov = q @ mid @ q
-    diag = np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))
-    sigma[..., :2] = diag[..., :2]
-    if n_states == 4:
-        err[..., 2] = sol[..., 2]
-        sigma[..., 2] = diag[..., 2]
-    return (np.where(ok_err[..., None], err, np.nan),
-            np.where((ok & regular)[..., None], sigma, np.nan))
+    geom = wls_geometry(los_enu, used, sigma_m, n_states, held_height)
+    return wls_solve(geom, used, range_err_m, error_sigma_m)

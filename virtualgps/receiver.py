@@ -769,6 +769,11 @@ class PositionErrors:
     held_gain_en : (n_t, 2) metres of east/north error per metre of error in a 2D fix's held
         height (0 where the fix is not 2D): the 3-state solution's response to the ranges'
         residual u_up x dh (:func:`carry_held_height`)
+    uere_sigma_m : (n_t, n_sat) metres, the UERE sigmas weighting the fix (None without
+        ``dop_error``)
+    wls_3d : the 4-state least squares' geometry of every epoch, and ``wls_2d`` the 3-state
+        one of the epochs with three used satellites (``two_d_rows``): the Doppler solution
+        (:func:`velocity_errors`) has the same weights (None without ``dop_error``)
     """
 
     enu_m: np.ndarray
@@ -779,6 +784,10 @@ class PositionErrors:
     sigma_enu_m: np.ndarray
     range_rms_m: np.ndarray
     held_gain_en: np.ndarray
+    uere_sigma_m: np.ndarray | None = None
+    wls_3d: errors.WlsGeometry | None = None
+    wls_2d: errors.WlsGeometry | None = None
+    two_d_rows: np.ndarray | None = None
 
 
 def position_errors(
@@ -823,6 +832,7 @@ def position_errors(
     modelled = np.zeros(3, bool)  # axes the model says something about
     range_rms = np.full(n_t, np.nan)
     gm_state = mp_state = None
+    geom3 = geom2 = k = None
     three_d = n_used >= 4
     two_d = np.zeros(n_t, bool)
     held_gain = np.zeros((n_t, 2))
@@ -882,19 +892,19 @@ def position_errors(
             err_var = (sigma_i**2 if err_var is None else err_var) \
                 + np.where(sky.blocked, 0.0, sigma_mp**2)
         err_sigma = None if err_var is None else np.sqrt(err_var)
-        e3, sigma_enu = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4,
-                                       error_sigma_m=err_sigma)
+        geom3 = errors.wls_geometry(sky.los_enu, used, sigma_i, n_states=4)
+        e3, sigma_enu = errors.wls_solve(geom3, used, eps, error_sigma_m=err_sigma)
         three_d = three_d & np.isfinite(e3[:, 0])
         two_d = n_used == 3
         e2 = np.zeros_like(e3)
         k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
         if k.size:
-            e2[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
+            geom2 = errors.wls_geometry(sky.los_enu[k], used[k], sigma_i[k], n_states=3)
+            e2[k] = errors.wls_solve(geom2, used[k], eps[k])[0]
             # A held height off by dh leaves u_up dh in each range's residual (rows [-e, -n,
             # -u, 1]), which the 3-state solution moves into east/north: its response to 1 m.
             up = np.where(np.isnan(sky.los_enu[k][..., 2]), 0.0, sky.los_enu[k][..., 2])
-            held_gain[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], up,
-                                          n_states=3)[0][:, :2]
+            held_gain[k] = errors.wls_solve(geom2, used[k], up)[0][:, :2]
             # The 2D fix's own sigmas (GST), the held height counted as a measurement.
             sigma_enu[k] = errors.wls_fix(
                 sky.los_enu[k], used[k], sigma_i[k], eps[k], held_height=True,
@@ -909,12 +919,13 @@ def position_errors(
             range_rms = np.sqrt(np.where(used, range_var, 0.0).sum(axis=1) / n)
     sigma = np.where(modelled, np.sqrt(var), np.nan)
     held_gain = np.where(np.isfinite(held_gain), held_gain, 0.0)
-    return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms, held_gain)
+    return PositionErrors(enu, three_d, two_d, gm_state, mp_state, sigma, range_rms, held_gain,
+                          sigma_i, geom3, geom2, k)
 
 
 def velocity_errors(
     prof: Profile, sky: Sky, used: np.ndarray, dt_s: np.ndarray, state: ReceiverState,
-    u: np.ndarray, layout: dict[str, int],
+    u: np.ndarray, layout: dict[str, int], pos_err: PositionErrors,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The reported velocity's error: Doppler range-rate errors solved like the ranges.
 
@@ -926,6 +937,7 @@ def velocity_errors(
     Parameters
     ----------
     prof, sky, used, dt_s, state, u, layout : as :func:`position_errors`
+    pos_err : its result for these epochs (the UERE sigmas and least-squares geometry, shared)
 
     Returns
     -------
@@ -940,13 +952,14 @@ def velocity_errors(
     z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
     x0 = _gm_start(state.rr_mps, n_sat)
     x = errors.gauss_markov(x0, dt_s, d.range_rate_tau_s, np.ones(n_sat), z)
-    uere = _uere_args(prof)
-    sigma_i = errors.uere_sigma_m(sky.el_deg, *uere)
-    eps = d.range_rate_sigma_mps * (sigma_i / _uere_zenith_m(uere)) * x
-    e = errors.wls_fix(sky.los_enu, used, sigma_i, eps, n_states=4)[0]
-    k = np.flatnonzero(used.sum(axis=1) == 3)
-    if k.size:  # a 2D fix: east/north/clock drift
-        e[k] = errors.wls_fix(sky.los_enu[k], used[k], sigma_i[k], eps[k], n_states=3)[0]
+    # (The velocity needs dop_error, so the position's weights and geometry exist: the same
+    # UERE sigmas, used satellites and epochs with three of them.)
+    sigma_i = pos_err.uere_sigma_m
+    eps = d.range_rate_sigma_mps * (sigma_i / _uere_zenith_m(_uere_args(prof))) * x
+    e = errors.wls_solve(pos_err.wls_3d, used, eps)[0]
+    k = pos_err.two_d_rows
+    if k is not None and k.size:  # a 2D fix: east/north/clock drift
+        e[k] = errors.wls_solve(pos_err.wls_2d, used[k], eps[k])[0]
     return np.where(np.isfinite(e), e, 0.0), _carried(x, x0)
 
 
@@ -1358,7 +1371,7 @@ def simulate(
     geoid = geodesy.geoid_sep_m(lat, lon)
 
     # Speed and course from the Doppler-derived velocity: the truth plus its error.
-    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, u, layout)
+    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, u, layout, err)
     v_rep = vel + vel_err
     speed = np.hypot(v_rep[:, 0], v_rep[:, 1])
     course = np.degrees(np.arctan2(v_rep[:, 0], v_rep[:, 1])) % 360.0
