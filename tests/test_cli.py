@@ -152,6 +152,31 @@ def test_an_error_in_the_sky_thread_reaches_the_caller(replayed, tmp_path, monke
     assert part.read_bytes() and out.read_bytes().startswith(part.read_bytes())
 
 
+def test_an_interrupted_replay_says_how_far_it_got_and_leaves_whole_epochs(tmp_path):
+    import re
+    import signal
+    import time
+
+    poses = write_walk(tmp_path / "long.jsonl", n=20_000)  # 10,000 s: ~100,000 epochs at 10 Hz
+    out = tmp_path / "o.nmea"
+    proc = subprocess.Popen([sys.executable, "-m", "virtualgps", "replay", str(poses), "--rate",
+                             "10", "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60.0
+    while not (out.exists() and out.stat().st_size) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    m = re.fullmatch(r"virtualgps: replay interrupted: (\d+) of (\d+) epochs written to (.+)",
+                     last)
+    assert m and m.group(3) == str(out), last
+    data = out.read_bytes()
+    assert 0 < int(m.group(1)) < int(m.group(2))
+    assert data.count(b"$GPGGA") == int(m.group(1)) and data.endswith(b"\r\n")
+
+
 FAULTS = """
 import resource, sys
 import numpy as np

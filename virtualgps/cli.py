@@ -27,6 +27,7 @@ from virtualgps.exceptions import VirtualGPSError
 log = logging.getLogger("virtualgps")
 
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command stopped by Ctrl-C
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -317,12 +318,25 @@ def cmd_replay(args: argparse.Namespace) -> int:
         tle_path,
         cfg.seed,
     )
-    progress = _progress_bar(sys.stderr)
+    bar = _progress_bar(sys.stderr)
+    written = [0]  # epochs written so far (what an interrupted replay leaves)
+
+    def progress(done: int, total: int) -> None:
+        written[0] = done
+        if bar is not None:
+            bar(done, total)
+
     out = sys.stdout.buffer if args.out == "-" else open(args.out, "wb")  # noqa: SIM115
     fixes_out = open(args.fixes, "w", newline="") if args.fixes else None  # noqa: SIM115
     t_start = time.perf_counter()
     try:
         n = replay.run_replay(rx, track, grid, fmt, out, cfg.seed, fixes_out, progress)
+    except KeyboardInterrupt:
+        # Whole epochs only were written (a chunk at a time): say how far it got, and exit
+        # as an interrupted command does (128 + SIGINT), not as a finished one.
+        log.info("replay interrupted: %d of %d epochs written to %s", written[0],
+                 len(grid.t_unix_s), args.out)
+        return EXIT_INTERRUPTED
     finally:
         if out is not sys.stdout.buffer:
             out.close()
