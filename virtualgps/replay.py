@@ -127,9 +127,16 @@ def run_replay(
     def write(b: int, t, pos, vel, valid, sky) -> None:
         nonlocal state
         fixes, state = simulate(rx, t, pos, vel, valid, state, rng, sky=sky)
-        out.write(b"".join(nmea.render_batch(fixes, fmt)))
-        if fixes_out is not None:
-            fixes_out.write(fixes_csv_rows(fixes))
+        data = b"".join(nmea.render_batch(fixes, fmt))
+        rows = fixes_csv_rows(fixes) if fixes_out is not None else ""
+        try:
+            out.write(data)
+            if fixes_out is not None:
+                fixes_out.write(rows)
+        except KeyboardInterrupt:  # raised after the write completed: these epochs count
+            if progress is not None:
+                progress(b, n)
+            raise
         if progress is not None:
             progress(b, n)
 
