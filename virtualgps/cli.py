@@ -334,6 +334,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         # Whole epochs only were written (a chunk at a time): say how far it got, and exit
         # as an interrupted command does (128 + SIGINT), not as a finished one.
+        if bar is not None:
+            sys.stderr.write("\n")  # (below the progress bar's line)
         log.info("replay interrupted: %d of %d epochs written to %s", written[0],
                  len(grid.t_unix_s), args.out)
         return EXIT_INTERRUPTED

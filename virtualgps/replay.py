@@ -133,7 +133,7 @@ def run_replay(
             out.write(data)
             if fixes_out is not None:
                 fixes_out.write(rows)
-        except KeyboardInterrupt:  # raised after the write completed: these epochs count
+        except KeyboardInterrupt:  # a file's write is not interrupted: these epochs count
             if progress is not None:
                 progress(b, n)
             raise
