@@ -326,6 +326,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if bar is not None:
             bar(done, total)
 
+    if len(grid.t_unix_s) > replay.CHUNK_EPOCHS:
+        replay.keep_freed_memory()  # (this process exits after the replay)
     out = sys.stdout.buffer if args.out == "-" else open(args.out, "wb")  # noqa: SIM115
     fixes_out = open(args.fixes, "w", newline="") if args.fixes else None  # noqa: SIM115
     t_start = time.perf_counter()

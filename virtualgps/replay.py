@@ -144,7 +144,6 @@ def run_replay(
         if n:
             write(n, *epochs(0, n))
         return n
-    keep_freed_memory()
     # The sky of the next chunk is computed in a second thread while this one's errors and
     # NMEA are: the sky is half the work, mostly Embree and numpy on large arrays, which
     # release the GIL (the 10 Hz hour on this project's two cores: 1.8-2.0 s in-process
@@ -165,15 +164,20 @@ def run_replay(
 
 
 def keep_freed_memory() -> bool:
-    """Have glibc's malloc keep freed blocks of up to 32 MB for reuse in this process.
+    """Have glibc's malloc keep freed blocks of up to 32 MB for reuse in this process, in one
+    arena.
 
     Every chunk of a replay allocates and frees the same ~100 MB of numpy temporaries, blocks
     of 0.1-3 MB. By default glibc serves such blocks with fresh mmaps (or trims the heap after
-    them), so every chunk touches new pages, each a page fault that the kernel zero-fills:
-    the 10 Hz hour took 170,000 faults and 0.3-0.45 s of system time; kept for reuse, 59,000
-    and 0.11-0.17 s (same run, pinned to one core). The cost: the process keeps its peak heap
-    until it exits, which a replay does. (M_MMAP_THRESHOLD -3, M_TRIM_THRESHOLD -1 in glibc's
-    malloc.h; 32 MB is the largest mmap threshold it accepts on 64-bit.)
+    them), and the replay's second thread gets an arena of its own, trimmed apart, so every
+    chunk touches new pages, each a page fault that the kernel zero-fills: the 10 Hz hour took
+    120,000-175,000 faults and 0.25-0.45 s of system time; kept for reuse in one arena, 56,000-
+    58,000 and 0.16-0.19 s, and no slower on two cores (five whole processes each, alternately:
+    1.56-1.63 s against 1.58-1.96 s). The cost: the process keeps its peak heap until it exits,
+    so the ``virtualgps replay`` command calls this (it exits after its replay), not
+    :func:`run_replay`, which long-lived processes (the gap tool's workers) call too.
+    (M_MMAP_THRESHOLD -3, M_TRIM_THRESHOLD -1, M_ARENA_MAX -8 in glibc's malloc.h; 32 MB is
+    the largest mmap threshold it accepts on 64-bit.)
 
     Returns
     -------
@@ -188,7 +192,8 @@ def keep_freed_memory() -> bool:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mmap_ok = mallopt(-3, 32 * 1024 * 1024)  # M_MMAP_THRESHOLD
     trim_ok = mallopt(-1, 1024 * 1024 * 1024)  # M_TRIM_THRESHOLD
-    return bool(mmap_ok and trim_ok)
+    arena_ok = mallopt(-8, 1)  # M_ARENA_MAX
+    return bool(mmap_ok and trim_ok and arena_ok)
 
 
 def _col(values: np.ndarray, fmt: str) -> list[str]:
