@@ -140,7 +140,7 @@ def run_replay(
         if progress is not None:
             progress(b, n)
 
-    if n <= CHUNK_EPOCHS:
+    if n <= CHUNK_EPOCHS:  # one chunk: nothing to overlap (and no thread to start)
         if n:
             write(n, *epochs(0, n))
         return n

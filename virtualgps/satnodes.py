@@ -112,17 +112,12 @@ class SatNodes:
             t0 = float(t[0])
             start = math.floor(t0 / self.step_s)
             s = (t0 - start * self.step_s) / self.step_s  # (see below)
-            first = start + NODE_OFFSETS[0]
-            keys = np.arange(first, first + len(NODE_OFFSETS))
+            keys = range(start + NODE_OFFSETS[0], start + NODE_OFFSETS[-1] + 1)
             try:
-                nodes = [self._nodes[k] for k in keys.tolist()]
+                nodes = [self._nodes[k] for k in keys]
             except KeyError:
-                nodes = list(self._fetch(keys))
-            pos = None
-            for w, node in zip(lagrange_weights(s), nodes, strict=True):
-                term = w * node
-                pos = term if pos is None else pos + term
-            return pos[None]
+                nodes = list(self._fetch(np.asarray(keys)))
+            return _weighted_sum(lagrange_weights(s), nodes)[None]
         out = np.full((t.size, len(self.ephemeris.prn), 3), np.nan)
         ok = np.flatnonzero(np.isfinite(t))
         if ok.size == 0:
@@ -140,13 +135,14 @@ class SatNodes:
         nodes = self._fetch(keys)
         # The six nodes of an epoch are consecutive keys, so consecutive rows of ``nodes``.
         row = np.searchsorted(keys, first)
-        if starts.size == 1:  # one interval (the live epoch, or a batch within a step)
-            blocks = [nodes[row[0] + j][None] for j in range(len(NODE_OFFSETS))]
-        else:
-            blocks = [nodes[row + j] for j in range(len(NODE_OFFSETS))]
-        pos = None
-        for w, node in zip(lagrange_weights(s), blocks, strict=True):
-            term = w[:, None, None] * node
-            pos = term if pos is None else pos + term
-        out[ok] = pos
+        weights = [w[:, None, None] for w in lagrange_weights(s)]
+        out[ok] = _weighted_sum(weights, [nodes[row + j] for j in range(len(NODE_OFFSETS))])
         return out
+
+
+def _weighted_sum(weights: list, nodes: list) -> np.ndarray:
+    """sum_j weights[j] * nodes[j], added in order (the same bits for one epoch or many)."""
+    pos = weights[0] * nodes[0]
+    for w, node in zip(weights[1:], nodes[1:], strict=True):
+        pos = pos + w * node
+    return pos
