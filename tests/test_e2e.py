@@ -209,7 +209,7 @@ def test_gpsd_reads_our_fix_and_satellites(tmp_path, magdeburg_antenna):
 
     # The same satellites as our GSV: gpsd's SKY lists what GSV listed; compare with our sky.
     from virtualgps import config
-    from virtualgps.receiver import compute_sky
+    from virtualgps.sky import compute_sky
 
     cfg = config.resolve({})
     ephem, _ = config.load_ephemeris(cfg, scene.tle_path)

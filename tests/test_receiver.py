@@ -602,7 +602,7 @@ def test_multipath_sigma_decays_with_elevation_and_wall_distance():
 
 def _mp_sky(wall_dist_m, blocked):
     """A handmade Sky of six satellites for position_errors, the antenna wall_dist_m from a wall."""
-    from virtualgps.receiver import Sky
+    from virtualgps.sky import Sky
 
     az = np.array([0.0, 70.0, 140.0, 210.0, 280.0, 330.0])
     el = np.array([80.0, 10.0, 25.0, 40.0, 15.0, 55.0])

@@ -302,7 +302,8 @@ def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
 
 
 def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
-    from virtualgps.receiver import Georef, compute_sky, expected_cn0_dbhz
+    from virtualgps.receiver import Georef, expected_cn0_dbhz
+    from virtualgps.sky import compute_sky
 
     g = Georef(narrow_reflector.lat_deg, narrow_reflector.lon_deg, narrow_reflector.alt_hae_m)
 
@@ -332,8 +333,9 @@ def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
 def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
     from virtualgps import geodesy
     from virtualgps.config import BUNDLED_SCENES_DIR
-    from virtualgps.receiver import Georef, compute_sky
+    from virtualgps.receiver import Georef
     from virtualgps.scene import load_scene
+    from virtualgps.sky import compute_sky
 
     scene = load_scene(BUNDLED_SCENES_DIR / "test-wall")
     # Tree1's crown: east 20..26, north -20..-14, up 3..9 (tools/make_test_scene.py).

@@ -15,7 +15,8 @@ from virtualgps import nmea, skymask
 from virtualgps.cli import main, sky_rows
 from virtualgps.exceptions import InputFileError
 from virtualgps.profiles import load_profile, read_toml
-from virtualgps.receiver import Receiver, ReceiverState, compute_sky, simulate
+from virtualgps.receiver import Receiver, ReceiverState, simulate
+from virtualgps.sky import compute_sky
 
 INF = float("inf")
 # Five satellites in 90 x 30 deg bins: PRN 1 alone in (el 0-30, az 0-90), PRN 3 alone in

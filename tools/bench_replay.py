@@ -17,7 +17,7 @@ writing NMEA alone costs in Python; ``pip install nmeasim``). ``--daemon`` measu
 time (all threads, from /proc) per epoch and as a share of a core, after a probe of what the
 machine adds to work that follows idle time (:func:`idle_penalty`). ``--breakdown`` replays the
 hour at 10 Hz in-process and times (CPU of the calling thread) the seed-independent sky
-(``receiver.compute_sky``, in the replay's second thread) and its parts inside it -- what any
+(``sky.compute_sky``, in the replay's second thread) and its parts inside it -- what any
 receiver model on this sky costs before its first random draw -- then the rest of the receiver
 and the NMEA rendering in the main thread.
 

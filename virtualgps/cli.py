@@ -368,7 +368,7 @@ def _progress_bar(stream):
 
 def cmd_sky(args: argparse.Namespace) -> int:
     from virtualgps import config, geodesy
-    from virtualgps.receiver import compute_sky
+    from virtualgps.sky import compute_sky
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)

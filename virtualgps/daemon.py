@@ -32,12 +32,12 @@ from virtualgps.receiver import (
     Receiver,
     ReceiverRows,
     ReceiverState,
-    compute_sky,
     initial_state,
     restart,
     simulate,
 )
 from virtualgps.records import Fixes
+from virtualgps.sky import compute_sky
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,9 @@ from typing import BinaryIO, TextIO
 import numpy as np
 
 from virtualgps import nmea, pose
-from virtualgps.receiver import Georef, Receiver, compute_sky, initial_state, simulate
+from virtualgps.receiver import Georef, Receiver, initial_state, simulate
 from virtualgps.records import Fixes
+from virtualgps.sky import compute_sky
 
 CHUNK_EPOCHS = 4096
 

@@ -3,7 +3,7 @@
 Owns the lookup of a profile's ``[sky_mask]`` table (:class:`virtualgps.profiles.SkyMaskParams`),
 the learned part of the ``foliage`` effect (DESIGN section 6): a grid of azimuth x elevation
 bins of attenuation in dB, optionally one grid per square cell of the scene's east/north plane.
-:func:`virtualgps.receiver.compute_sky` adds the attenuation to the foliage attenuation, and a
+:func:`virtualgps.sky.compute_sky` adds the attenuation to the foliage attenuation, and a
 bin at or above ``block_db`` blocks. Pure numpy, vectorised over any leading axes.
 """
 

@@ -50,8 +50,9 @@ from virtualgps.gap.reallogs import (
 )
 from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
 from virtualgps.profiles import Profile, load_profile
-from virtualgps.receiver import Georef, Receiver, compute_sky
+from virtualgps.receiver import Georef, Receiver
 from virtualgps.replay import epoch_grid, run_replay, track_in_scene
+from virtualgps.sky import compute_sky
 
 # The TLE set nearest the MT3339 hour (2017-03-11) among ../shared/data (SOURCES.md).
 CALIBRATION_TLE = "magdeburg-campus/tle/gps-ops.2017-03-26.tle.txt"

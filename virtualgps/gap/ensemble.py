@@ -20,15 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from virtualgps.profiles import Profile
-from virtualgps.receiver import (
-    Georef,
-    Receiver,
-    ReceiverState,
-    Sky,
-    compute_sky,
-    initial_state,
-    simulate,
-)
+from virtualgps.receiver import Georef, Receiver, ReceiverState, initial_state, simulate
+from virtualgps.sky import Sky, compute_sky
 
 # A worker keeps at most this many skies (one per run and sky-relevant profile settings).
 SKY_CACHE_SIZE = 48
@@ -164,7 +157,7 @@ def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
 
 
 def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
-    """The profile settings :func:`virtualgps.receiver.compute_sky` depends on."""
+    """The profile settings :func:`virtualgps.sky.compute_sky` depends on."""
     mp = profile.multipath
     return (setup.digest or id(setup), repr(profile.sky), repr(profile.foliage),
             repr(profile.sky_mask), repr(profile.nlos), mp.enabled, mp.max_dist_m)

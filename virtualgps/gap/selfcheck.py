@@ -41,8 +41,9 @@ from virtualgps import geodesy, nmea, pose
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
 from virtualgps.profiles import load_profile_dict
-from virtualgps.receiver import Georef, Receiver, compute_sky
+from virtualgps.receiver import Georef, Receiver
 from virtualgps.replay import epoch_grid, run_replay
+from virtualgps.sky import compute_sky
 
 DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
 SEED_BASE = 100_000  # pseudo-real seeds lie far from the diagnosis' seeds 0..N
