@@ -190,7 +190,9 @@ def first_order_recursion(y0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.nd
     -------
     y : (n_t, m) float
     """
-    if y0.ndim == 2:
+    if y0.ndim == 2 or u.shape[0] == 1:
+        # (One epoch, the live loop's: the recursion's one step, without its run bookkeeping,
+        # ~25 us an epoch for each of the error processes.)
         return p[:, None] * y0 + u
     y = np.empty_like(u)
     n = u.shape[0]
