@@ -13,7 +13,6 @@ from virtualgps.receiver import (
     Georef,
     Receiver,
     ReceiverState,
-    box_muller,
     dop,
     select_used,
     simulate,
@@ -60,8 +59,11 @@ def test_sigma_equals_paper_equations():
 
 
 def test_box_muller_gives_standard_normals():
+    from virtualgps.errors import normals_from_uniforms
+
     rng = np.random.default_rng(7)
-    z0, z1 = box_muller(rng.random(200_000), rng.random(200_000))
+    z = normals_from_uniforms(rng.random((100_000, 4)))
+    z0, z1 = z[:, 0::2].ravel(), z[:, 1::2].ravel()  # each pair's two deviates
     for z in (z0, z1):
         assert abs(z.mean()) < 0.01
         assert z.std() == pytest.approx(1.0, rel=0.01)
@@ -634,11 +636,12 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
         {k: v for k, v in layout_off.items() if k not in others}
     u = np.random.default_rng(3).random((1, layout_on["total"]))
     args = (sky, used, used.sum(axis=1), np.array([np.inf]), ReceiverState())
-    e_on = position_errors(on, *args, u, layout_on)
-    e_off = position_errors(off, *args, u[:, : layout_off["total"]], layout_off)
+    z_row = errors.normals_from_uniforms(u)  # (as simulate gives them)
+    e_on = position_errors(on, *args, z_row, layout_on)
+    e_off = position_errors(off, *args, z_row[:, : layout_off["total"]], layout_off)
     assert np.abs(e_off.enu_m).max() < 1e-6
     c = layout_on["multipath"]
-    z = errors.normals_from_uniforms(u[:, c : c + 6])
+    z = errors.normals_from_uniforms(u[:, c : c + 6])  # the block's own Box-Muller pairs
     prox = max(0.0, 1.0 - wall_dist_m / 30.0)
     eps = np.where(blocked, 0.0, 4.0 * np.exp(-sky.el_deg / 15.0) * prox * z)
     sigma_i = errors.uere_sigma_m(sky.el_deg, *QUIET_UERE.values())

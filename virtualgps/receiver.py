@@ -387,25 +387,6 @@ def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) 
     return (slope * n + intercept) / 3.0  # Eq. 3
 
 
-def box_muller(u1: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two independent standard normal deviates from two uniforms (Box & Muller 1958).
-
-    The paper draws its Gaussian noise this way; we keep it so a seed reproduces the same
-    numbers whatever numpy's own normal sampler does across versions.
-
-    Parameters
-    ----------
-    u1, u2 : (...) float, uniform on [0, 1)
-
-    Returns
-    -------
-    z0, z1 : (...) float, standard normal
-    """
-    radius = np.sqrt(-2.0 * np.log1p(-u1))  # log(1 - u1): u1 may be 0, never 1
-    angle = 2.0 * np.pi * u2
-    return radius * np.cos(angle), radius * np.sin(angle)
-
-
 def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dilutions of precision of the used satellites' geometry, as an MTK receiver reports them.
 
@@ -507,7 +488,9 @@ def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
         "total"; a
         model that is off takes none
     """
-    even = n_sat + (n_sat % 2)  # Box-Muller works in pairs
+    # Box-Muller works in pairs: every block starts at an even column, so the normals of the
+    # whole row (simulate makes them at once) are each block's own.
+    even = n_sat + (n_sat % 2)
     cols = {"usarsim": 0}
     total = 2  # the paper's two uniforms, always drawn (keeps its bytes unchanged)
     if profile.dop_error.enabled:
@@ -619,7 +602,7 @@ def position_errors(
     n_used: np.ndarray,
     dt_s: np.ndarray,
     state: ReceiverState,
-    u: np.ndarray,
+    z: np.ndarray,
     layout: dict[str, int],
 ) -> PositionErrors:
     """The position error of each epoch under the profile's error model.
@@ -641,7 +624,8 @@ def position_errors(
     n_used : (n_t,) int
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
     state : receiver state before the batch
-    u : (n_t, total) uniforms, one row per epoch
+    z : (n_t, total) standard normals, one row per epoch (the row of uniforms through
+        :func:`virtualgps.errors.normals_from_uniforms`)
     layout : from :func:`draw_layout`
 
     Returns
@@ -663,49 +647,49 @@ def position_errors(
         else None
     if prof.noise.model == "usarsim":
         sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
-        z_north, z_east = box_muller(u[:, 0], u[:, 1])
+        # (Box-Muller from the paper's two uniforms: the paper draws its noise this way, and
+        # a seed then gives the same numbers whatever numpy's own normal sampler does.)
+        z_north, z_east = z[:, 0], z[:, 1]
         enu[:, 0], enu[:, 1] = sigma * z_east, sigma * z_north
         var[:, :2] += (sigma**2)[:, None]
         modelled[:2] = True
     ce = prof.correlated_error
     if ce.enabled:
         c = layout["gm"]
-        width = n_sat + (n_sat % 2) if ce.domain == "range" else 4
-        z = errors.normals_from_uniforms(u[:, c : c + width])
+        z_gm = z[:, c:]
         if ce.domain == "range":
             el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
             x0 = _gm_start(state.gm_m, n_sat)
-            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z[:, :n_sat])
+            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z_gm[:, :n_sat])
             gm_state = _carried(gm, x0)
             corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
         else:
             x0 = _gm_start(state.gm_m, 3)
             sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
-            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z[:, :3])
+            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z_gm[:, :3])
             gm_state = _carried(gm, x0)
             enu += gm
             var += sig**2
             modelled[:] = True
     if sigma_i is not None:  # dop_error
         c = layout["white"]
-        z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
+        z_white = z[:, c : c + n_sat]
         # The errors' own variance where it differs from the weights' (the receiver weights
         # by its textbook budget): the reported sigma must be that of the errors it makes.
         err_var = None
         if ce.enabled and ce.domain == "range":
-            eps = corr_range + prof.dop_error.rx_noise_m * z
+            eps = corr_range + prof.dop_error.rx_noise_m * z_white
             err_var = (ce.sigma_m * el_shape) ** 2 + prof.dop_error.rx_noise_m**2
         else:
-            eps = sigma_i * z
+            eps = sigma_i * z_white
         eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
         mp = prof.multipath
         if mp.enabled:
             c = layout["multipath"]
-            z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
             x0 = _gm_start(state.mp_m, n_sat)
             # Unit processes, one per satellite, running whether or not it is seen; the sigma
             # follows the elevation and the antenna's distance to the walls epoch by epoch.
-            x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z)
+            x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z[:, c : c + n_sat])
             mp_state = _carried(x, x0)
             sigma_mp = errors.multipath_sigma_m(sky.el_deg, sky.wall_dist_m, mp.sigma_m,
                                                 mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
@@ -747,7 +731,7 @@ def position_errors(
 
 def velocity_errors(
     prof: Profile, sky: Sky, used: np.ndarray, dt_s: np.ndarray, state: ReceiverState,
-    u: np.ndarray, layout: dict[str, int], pos_err: PositionErrors,
+    z: np.ndarray, layout: dict[str, int], pos_err: PositionErrors,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The reported velocity's error: Doppler range-rate errors solved like the ranges.
 
@@ -758,7 +742,7 @@ def velocity_errors(
 
     Parameters
     ----------
-    prof, sky, used, dt_s, state, u, layout : as :func:`position_errors`
+    prof, sky, used, dt_s, state, z, layout : as :func:`position_errors`
     pos_err : its result for these epochs (the UERE sigmas and least-squares geometry, shared)
 
     Returns
@@ -771,9 +755,8 @@ def velocity_errors(
     if "velocity" not in layout:
         return np.zeros((n_t, 3)), None
     c = layout["velocity"]
-    z = errors.normals_from_uniforms(u[:, c : c + n_sat + (n_sat % 2)])[:, :n_sat]
     x0 = _gm_start(state.rr_mps, n_sat)
-    x = errors.gauss_markov(x0, dt_s, d.range_rate_tau_s, np.ones(n_sat), z)
+    x = errors.gauss_markov(x0, dt_s, d.range_rate_tau_s, np.ones(n_sat), z[:, c : c + n_sat])
     # (The velocity needs dop_error, so the position's weights and geometry exist: the same
     # UERE sigmas, used satellites and epochs with three of them.)
     sigma_i = pos_err.uere_sigma_m
@@ -845,7 +828,7 @@ def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
 
 
 def tracked_cn0(
-    prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, u: np.ndarray,
+    prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, z: np.ndarray,
     layout: dict[str, int],
 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """C/N0 and tracking of every satellite (``cn0_tracking``).
@@ -856,7 +839,8 @@ def tracked_cn0(
     sky : the epochs' sky, (n_t, n_sat)
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
     state : receiver state before the batch
-    u : (n_t, total) uniforms; layout : from :func:`draw_layout`
+    z : (n_t, total) standard normals; layout : from :func:`draw_layout` (as
+        :func:`position_errors`)
 
     Returns
     -------
@@ -866,10 +850,10 @@ def tracked_cn0(
     """
     ct = prof.cn0_tracking
     n_t, n_sat = sky.el_deg.shape
-    z = errors.normals_from_uniforms(u[:, layout["fade"] : layout["fade"] + n_sat + n_sat % 2])
     fade0 = state.fade_db if state.fade_db is not None else np.zeros(n_sat)
+    c = layout["fade"]
     fade = errors.gauss_markov(fade0, dt_s, ct.fade_tau_s, np.full(n_sat, ct.fade_sigma_db),
-                               z[:, :n_sat])
+                               z[:, c : c + n_sat])
     cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
     above = sky.el_deg >= 0.0  # NaN (no ephemeris): False
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
@@ -1140,8 +1124,11 @@ def simulate(
     # Steps to the microsecond: epochs k / rate far from 1970 differ from 1 / rate in their last
     # bits; equal steps keep the Gauss-Markov recursions on their one-coefficient fast path.
     dt_s = np.round(dt_s, 6)
+    # Every model takes standard normals (Box-Muller pairs: each model's block starts at an
+    # even column), made in one pass over the row: the live epoch's per-call costs add up.
+    z = errors.normals_from_uniforms(u)
     if prof.cn0_tracking.enabled:
-        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, u, layout)
+        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, z, layout)
         seen = usable & sky.above_mask & pose_valid[:, None]
     else:
         track_state = {}
@@ -1161,7 +1148,7 @@ def simulate(
     starting = t < state.no_fix_until_t_unix_s
     hdop, vdop, pdop = dop(sky.los_enu, used) if not shared_sky else _dop_shared(sky, used)
 
-    err = position_errors(prof, sky, used, n_used, dt_s, state, u, layout)
+    err = position_errors(prof, sky, used, n_used, dt_s, state, z, layout)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)
@@ -1193,7 +1180,7 @@ def simulate(
     geoid = geodesy.geoid_sep_m(lat, lon)
 
     # Speed and course from the Doppler-derived velocity: the truth plus its error.
-    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, u, layout, err)
+    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, z, layout, err)
     v_rep = vel + vel_err
     speed = np.hypot(v_rep[:, 0], v_rep[:, 1])
     course = np.degrees(np.arctan2(v_rep[:, 0], v_rep[:, 1])) % 360.0
