@@ -371,37 +371,35 @@ def interpolate(
     tt, p, v = track.t_unix_s, track.xyz, track.vel_enu_mps
     finite = np.isfinite(t)
     i0 = np.searchsorted(tt, np.where(finite, t, -np.inf), side="right") - 1
-    inside = finite & (i0 >= 0) & (i0 < n - 1)
-    j = np.flatnonzero(inside)
-    # Only the segments the epochs fall in, and the last one (the live loop asks for one epoch
-    # of a lap or a history of thousands of poses: per-pose work there would dominate).
-    a = i0[j]
-    seg = np.append(a, n - 2) if n > 1 else a
-    # Coordinate rates per m/s of velocity: 1 for ENU tracks; for geodetic tracks (lat, lon, h)
-    # rates per m/s (north, east, up): degrees over the radii of curvature at the pose's height.
-    k_seg, k_last = _rate_per_mps(p[seg], track.frame), _rate_per_mps(p[-1:], track.frame)
-    # Segment finite differences (len(seg), 3), in native rates and in ENU m/s.
-    dt_seg = tt[seg + 1] - tt[seg]
-    fd = (p[seg + 1] - p[seg]) / dt_seg[:, None]
-    fd_enu = _native_to_enu(fd, k_seg, track.frame)
-    # The last pose's own velocity, else the last segment's finite difference, else 0 (hold).
-    last_v = v[-1].copy()
-    if n > 1:
-        last_v = np.where(np.isnan(last_v), fd_enu[-1], last_v)
-    last_v = np.where(np.isnan(last_v), 0.0, last_v)
-    last_rate = _enu_to_native(last_v[None, :], k_last, track.frame)[0]
-
+    # Only the segments the epochs fall in (the live loop asks for one epoch of a lap or a
+    # history of thousands of poses: per-pose work there would dominate), and only what the
+    # epochs need: finite differences where the track has no velocity, the last pose's rate
+    # for epochs after it.
+    j = np.flatnonzero(finite & (i0 >= 0) & (i0 < n - 1))
     if j.size:
-        dt = dt_seg[: j.size]
+        a = i0[j]
+        dt = tt[a + 1] - tt[a]
         w = ((t[j] - tt[a]) / dt)[:, None]
         pos[j] = p[a] + w * (p[a + 1] - p[a])
         v_i = v[a] + w * (v[a + 1] - v[a])
-        vel[j] = np.where(np.isnan(v_i), fd_enu[: j.size], v_i)
+        no_vel = np.isnan(v_i)
+        if no_vel.any():
+            v_i = np.where(no_vel, _segment_velocity_enu(track, a), v_i)
+        vel[j] = v_i
         valid[j] = (dt <= max_gap_s) | (t[j] == tt[a])
 
-    after = finite & (i0 == n - 1)
-    j = np.flatnonzero(after)
+    j = np.flatnonzero(finite & (i0 == n - 1))
     if j.size:
+        # The last pose's own velocity, else the last segment's finite difference, else 0 (hold).
+        last_v = v[-1].copy()
+        if n > 1 and np.isnan(last_v).any():
+            last_v = np.where(np.isnan(last_v), _segment_velocity_enu(track, np.array([n - 2]))[0],
+                              last_v)
+        last_v = np.where(np.isnan(last_v), 0.0, last_v)
+        # Coordinate rates per m/s of velocity: 1 for ENU tracks; for geodetic tracks (lat, lon,
+        # h) rates per m/s (north, east, up): degrees over the radii of curvature there.
+        last_rate = _enu_to_native(last_v[None, :], _rate_per_mps(p[-1:], track.frame),
+                                   track.frame)[0]
         age = t[j] - tt[-1]
         pos[j] = p[-1] + age[:, None] * last_rate
         vel[j] = last_v
@@ -410,6 +408,18 @@ def interpolate(
     pos[~valid] = np.nan
     vel[~valid] = np.nan
     return pos, vel, valid
+
+
+def _segment_velocity_enu(track: PoseTrack, seg: np.ndarray) -> np.ndarray:
+    """The finite-difference velocity of segments ``seg`` (poses k -> k + 1) of a track.
+
+    Returns
+    -------
+    vel_enu_mps : (len(seg), 3) float, ENU m/s
+    """
+    tt, p = track.t_unix_s, track.xyz
+    rate = (p[seg + 1] - p[seg]) / (tt[seg + 1] - tt[seg])[:, None]  # native units per second
+    return _native_to_enu(rate, _rate_per_mps(p[seg], track.frame), track.frame)
 
 
 def _rate_per_mps(xyz: np.ndarray, frame: str) -> np.ndarray:
