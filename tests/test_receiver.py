@@ -620,7 +620,7 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     """The fix error is the WLS solution of sigma(el, d) z on the unblocked satellites (the
     first epoch draws the stationary process: x = z), and nothing beyond max_dist_m."""
     from virtualgps import errors
-    from virtualgps.receiver import draw_layout, position_errors
+    from virtualgps.receiver import draw_layout, error_processes, position_errors
 
     mp = {"enabled": True, "sigma_m": 4.0, "el0_deg": 15.0, "max_dist_m": 30.0}
     on = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}, "multipath": mp})
@@ -635,10 +635,13 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     assert {k: v for k, v in layout_on.items() if k not in others} == \
         {k: v for k, v in layout_off.items() if k not in others}
     u = np.random.default_rng(3).random((1, layout_on["total"]))
-    args = (sky, used, used.sum(axis=1), np.array([np.inf]), ReceiverState())
     z_row = errors.normals_from_uniforms(u)  # (as simulate gives them)
-    e_on = position_errors(on, *args, z_row, layout_on)
-    e_off = position_errors(off, *args, z_row[:, : layout_off["total"]], layout_off)
+    dt, start = np.array([np.inf]), ReceiverState()
+    args = (sky, used, used.sum(axis=1), z_row)
+    e_on = position_errors(on, *args, layout_on,
+                           error_processes(on, start, dt, z_row, layout_on, 6))
+    e_off = position_errors(off, *args[:3], z_row[:, : layout_off["total"]], layout_off,
+                            error_processes(off, start, dt, z_row, layout_off, 6))
     assert np.abs(e_off.enu_m).max() < 1e-6
     c = layout_on["multipath"]
     z = errors.normals_from_uniforms(u[:, c : c + 6])  # the block's own Box-Muller pairs
@@ -751,6 +754,45 @@ def test_nav_filter_keeps_batch_equal_to_epoch_by_epoch_across_a_gap():
         for name in ("lat_deg", "lon_deg", "alt_msl_m"):
             np.testing.assert_array_equal(getattr(one, name)[0], getattr(batch, name)[i])
     np.testing.assert_array_equal(state.nav_enu_m, end.nav_enu_m)
+
+
+@pytest.mark.parametrize("lfilter", [False, True], ids=["recursion", "lfilter"])
+def test_gauss_markov_processes_together_equal_the_plain_recursion_to_the_bit(
+    monkeypatch, lfilter
+):
+    """Sets with their own correlation times and widths, run in one pass (the receiver's
+    fades, range errors and range rates), give each set's plain recursion to the bit, in a
+    batch with a gap (runs of one coefficient) and epoch by epoch (the live loop)."""
+    from virtualgps import errors
+
+    monkeypatch.setattr(errors, "_loop_epochs",
+                        errors.LOOP_EPOCHS_BEFORE_LFILTER + 1 if lfilter else 0)
+    rng = np.random.default_rng(11)
+    n = 300
+    dt = np.full(n, 0.1)
+    dt[0] = np.inf  # the first epoch: stationary start
+    dt[120:123] = 0.7  # a gap in the log
+    sets = [(np.zeros(5), 2.0, np.full(5, 1.5), rng.standard_normal((n, 5))),
+            (rng.standard_normal(3), 30.0, np.array([1.0, 1.0, 2.0]), rng.standard_normal((n, 3))),
+            (rng.standard_normal(4), 600.0, np.ones(4), rng.standard_normal((n, 4)))]
+    together = errors.gauss_markov_processes(sets, dt)
+    for (x0, tau_s, sigma, z), x in zip(sets, together, strict=True):
+        phi = np.exp(-dt / tau_s)
+        drive = sigma * np.sqrt(1.0 - phi[:, None] ** 2) * z
+        want, prev = np.empty_like(z), x0.tolist()
+        for k in range(n):  # Python floats, one multiply and one add per value
+            prev = [float(phi[k]) * a + float(b) for a, b in zip(prev, drive[k], strict=True)]
+            want[k] = prev
+        np.testing.assert_array_equal(x, want)
+        np.testing.assert_array_equal(x, errors.gauss_markov(x0, dt, tau_s, sigma, z))
+    state = [s[0] for s in sets]
+    for k in range(n):  # the live loop: one epoch a call
+        one = errors.gauss_markov_processes(
+            [(x0, s[1], s[2], s[3][k : k + 1]) for x0, s in zip(state, sets, strict=True)],
+            dt[k : k + 1])
+        state = [x[0] for x in one]
+        for x, x_batch in zip(state, together, strict=True):
+            np.testing.assert_array_equal(x, x_batch[k])
 
 
 def test_first_order_recursion_batch_equals_its_epochs_to_the_bit():

@@ -595,15 +595,73 @@ class PositionErrors:
     two_d_rows: np.ndarray | None = None
 
 
+Processes = dict[str, tuple[np.ndarray, np.ndarray]]  # name -> (x (n_t, m), its start x0)
+
+
+def error_processes(
+    prof: Profile, state: ReceiverState, dt_s: np.ndarray, z: np.ndarray, layout: dict[str, int],
+    n_sat: int,
+) -> Processes:
+    """The first-order Gauss-Markov processes of the profile's error models over a batch, run
+    together (:func:`virtualgps.errors.gauss_markov_processes`: each epoch's step costs the
+    same however many processes it carries).
+
+    Parameters
+    ----------
+    prof : profile
+    state : receiver state before the batch (the processes' carried values)
+    dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
+    z : (n_t, total) standard normals, one row per epoch; layout : from :func:`draw_layout`
+    n_sat : number of satellites
+
+    Returns
+    -------
+    processes : {name: (x, x0)}, x (n_t, m) the process at each epoch and x0 the value it
+        started from, for each model that is on: "fade" (``cn0_tracking``: C/N0 fades, dB,
+        per satellite), "gm" (``correlated_error``: unit range processes per satellite, or
+        east/north/up metres in the position domain), "mp" (``multipath`` with ``dop_error``:
+        unit, per satellite), "rr" (``dop_error``'s range rates: unit, per satellite)
+    """
+    sets: dict[str, tuple[np.ndarray, float, np.ndarray, np.ndarray]] = {}
+    ct = prof.cn0_tracking
+    if ct.enabled:
+        c = layout["fade"]
+        fade0 = state.fade_db if state.fade_db is not None else np.zeros(n_sat)
+        sets["fade"] = (fade0, ct.fade_tau_s, np.full(n_sat, ct.fade_sigma_db),
+                        z[:, c : c + n_sat])
+    ce = prof.correlated_error
+    if ce.enabled:
+        c = layout["gm"]
+        if ce.domain == "range":
+            sets["gm"] = (_gm_start(state.gm_m, n_sat), ce.tau_s, np.ones(n_sat),
+                          z[:, c : c + n_sat])
+        else:
+            sets["gm"] = (_gm_start(state.gm_m, 3), ce.tau_s, _gm_enu_sigma_m(ce), z[:, c : c + 3])
+    if prof.dop_error.enabled and prof.multipath.enabled:
+        c = layout["multipath"]
+        sets["mp"] = (_gm_start(state.mp_m, n_sat), prof.multipath.tau_s, np.ones(n_sat),
+                      z[:, c : c + n_sat])
+    if "velocity" in layout:
+        c = layout["velocity"]
+        sets["rr"] = (_gm_start(state.rr_mps, n_sat), prof.dop_error.range_rate_tau_s,
+                      np.ones(n_sat), z[:, c : c + n_sat])
+    xs = errors.gauss_markov_processes(list(sets.values()), dt_s)
+    return {name: (x, args[0]) for (name, args), x in zip(sets.items(), xs, strict=True)}
+
+
+def _gm_enu_sigma_m(ce) -> np.ndarray:
+    """(3,) metres: the east/north/up sigmas of ``correlated_error`` in the position domain."""
+    return np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
+
+
 def position_errors(
     prof: Profile,
     sky: Sky,
     used: np.ndarray,
     n_used: np.ndarray,
-    dt_s: np.ndarray,
-    state: ReceiverState,
     z: np.ndarray,
     layout: dict[str, int],
+    processes: Processes,
 ) -> PositionErrors:
     """The position error of each epoch under the profile's error model.
 
@@ -622,11 +680,10 @@ def position_errors(
     sky : the epochs' sky, (n_t, n_sat)
     used : (n_t, n_sat) bool, used satellites
     n_used : (n_t,) int
-    dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
-    state : receiver state before the batch
     z : (n_t, total) standard normals, one row per epoch (the row of uniforms through
         :func:`virtualgps.errors.normals_from_uniforms`)
     layout : from :func:`draw_layout`
+    processes : the batch's Gauss-Markov processes, from :func:`error_processes`
 
     Returns
     -------
@@ -655,21 +712,14 @@ def position_errors(
         modelled[:2] = True
     ce = prof.correlated_error
     if ce.enabled:
-        c = layout["gm"]
-        z_gm = z[:, c:]
+        gm, x0 = processes["gm"]
+        gm_state = _carried(gm, x0)
         if ce.domain == "range":
             el_shape = sigma_i / _uere_zenith_m(_uere_args(prof))
-            x0 = _gm_start(state.gm_m, n_sat)
-            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, np.ones(n_sat), z_gm[:, :n_sat])
-            gm_state = _carried(gm, x0)
             corr_range = ce.sigma_m * el_shape * gm  # unit process, scaled per satellite
         else:
-            x0 = _gm_start(state.gm_m, 3)
-            sig = np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
-            gm = errors.gauss_markov(x0, dt_s, ce.tau_s, sig, z_gm[:, :3])
-            gm_state = _carried(gm, x0)
             enu += gm
-            var += sig**2
+            var += _gm_enu_sigma_m(ce) ** 2
             modelled[:] = True
     if sigma_i is not None:  # dop_error
         c = layout["white"]
@@ -685,11 +735,9 @@ def position_errors(
         eps = eps + np.where(sky.nlos, sky.excess_m, 0.0)  # reflected: longer path, positive bias
         mp = prof.multipath
         if mp.enabled:
-            c = layout["multipath"]
-            x0 = _gm_start(state.mp_m, n_sat)
             # Unit processes, one per satellite, running whether or not it is seen; the sigma
             # follows the elevation and the antenna's distance to the walls epoch by epoch.
-            x = errors.gauss_markov(x0, dt_s, mp.tau_s, np.ones(n_sat), z[:, c : c + n_sat])
+            x, x0 = processes["mp"]
             mp_state = _carried(x, x0)
             sigma_mp = errors.multipath_sigma_m(sky.el_deg, sky.wall_dist_m, mp.sigma_m,
                                                 mp.el0_deg, mp.max_dist_m, mp.open_sky_factor)
@@ -730,8 +778,7 @@ def position_errors(
 
 
 def velocity_errors(
-    prof: Profile, sky: Sky, used: np.ndarray, dt_s: np.ndarray, state: ReceiverState,
-    z: np.ndarray, layout: dict[str, int], pos_err: PositionErrors,
+    prof: Profile, used: np.ndarray, processes: Processes, pos_err: PositionErrors,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The reported velocity's error: Doppler range-rate errors solved like the ranges.
 
@@ -742,7 +789,7 @@ def velocity_errors(
 
     Parameters
     ----------
-    prof, sky, used, dt_s, state, z, layout : as :func:`position_errors`
+    prof, used, processes : as :func:`position_errors`
     pos_err : its result for these epochs (the UERE sigmas and least-squares geometry, shared)
 
     Returns
@@ -750,13 +797,11 @@ def velocity_errors(
     vel_err_enu_mps : (n_t, 3) metres per second (0 without ``dop_error`` or a fix)
     rr_mps : (n_sat,) the processes after the batch (None when off)
     """
-    n_t, n_sat = used.shape
+    n_t = used.shape[0]
     d = prof.dop_error
-    if "velocity" not in layout:
+    if "rr" not in processes:
         return np.zeros((n_t, 3)), None
-    c = layout["velocity"]
-    x0 = _gm_start(state.rr_mps, n_sat)
-    x = errors.gauss_markov(x0, dt_s, d.range_rate_tau_s, np.ones(n_sat), z[:, c : c + n_sat])
+    x, x0 = processes["rr"]
     # (The velocity needs dop_error, so the position's weights and geometry exist: the same
     # UERE sigmas, used satellites and epochs with three of them.)
     sigma_i = pos_err.uere_sigma_m
@@ -828,8 +873,7 @@ def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
 
 
 def tracked_cn0(
-    prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, z: np.ndarray,
-    layout: dict[str, int],
+    prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, processes: Processes,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """C/N0 and tracking of every satellite (``cn0_tracking``).
 
@@ -839,8 +883,7 @@ def tracked_cn0(
     sky : the epochs' sky, (n_t, n_sat)
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
     state : receiver state before the batch
-    z : (n_t, total) standard normals; layout : from :func:`draw_layout` (as
-        :func:`position_errors`)
+    processes : the batch's Gauss-Markov processes (the fades), from :func:`error_processes`
 
     Returns
     -------
@@ -850,10 +893,7 @@ def tracked_cn0(
     """
     ct = prof.cn0_tracking
     n_t, n_sat = sky.el_deg.shape
-    fade0 = state.fade_db if state.fade_db is not None else np.zeros(n_sat)
-    c = layout["fade"]
-    fade = errors.gauss_markov(fade0, dt_s, ct.fade_tau_s, np.full(n_sat, ct.fade_sigma_db),
-                               z[:, c : c + n_sat])
+    fade, fade0 = processes["fade"]
     cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
     above = sky.el_deg >= 0.0  # NaN (no ephemeris): False
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
@@ -1127,8 +1167,9 @@ def simulate(
     # Every model takes standard normals (Box-Muller pairs: each model's block starts at an
     # even column), made in one pass over the row: the live epoch's per-call costs add up.
     z = errors.normals_from_uniforms(u)
+    processes = error_processes(prof, state, dt_s, z, layout, len(rx.ephemeris.prn))
     if prof.cn0_tracking.enabled:
-        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, z, layout)
+        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, processes)
         seen = usable & sky.above_mask & pose_valid[:, None]
     else:
         track_state = {}
@@ -1148,7 +1189,7 @@ def simulate(
     starting = t < state.no_fix_until_t_unix_s
     hdop, vdop, pdop = dop(sky.los_enu, used) if not shared_sky else _dop_shared(sky, used)
 
-    err = position_errors(prof, sky, used, n_used, dt_s, state, z, layout)
+    err = position_errors(prof, sky, used, n_used, z, layout, processes)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)
@@ -1180,7 +1221,7 @@ def simulate(
     geoid = geodesy.geoid_sep_m(lat, lon)
 
     # Speed and course from the Doppler-derived velocity: the truth plus its error.
-    vel_err, rr_state = velocity_errors(prof, sky, used, dt_s, state, z, layout, err)
+    vel_err, rr_state = velocity_errors(prof, used, processes, err)
     v_rep = vel + vel_err
     speed = np.hypot(v_rep[:, 0], v_rep[:, 1])
     course = np.degrees(np.arctan2(v_rep[:, 0], v_rep[:, 1])) % 360.0
