@@ -58,7 +58,7 @@ def test_sigma_equals_paper_equations():
     )
 
 
-def test_box_muller_gives_standard_normals():
+def test_normals_from_uniforms_are_standard_normals():
     from virtualgps.errors import normals_from_uniforms
 
     rng = np.random.default_rng(7)

@@ -223,7 +223,7 @@ def first_order_recursions(
     """:func:`first_order_recursion` for several sets of series with coefficients of their
     own, over the same epochs: one pass over the epochs for all of them, where each epoch's
     step costs the same few microseconds however many series it carries (three or four sets
-    an epoch in the receiver: ~0.15 s of the 10 Hz hour's replay in separate passes).
+    in the receiver: one pass instead of three saved ~0.14 s of the 10 Hz hour's replay).
 
     Parameters
     ----------
