@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 
 from virtualgps import errors, geodesy, signals
-from virtualgps.profiles import Profile
+from virtualgps.profiles import CorrelatedErrorParams, Profile
 from virtualgps.records import (
     MODE_2D,
     MODE_3D,
@@ -649,7 +649,7 @@ def error_processes(
     return {name: (x, args[0]) for (name, args), x in zip(sets.items(), xs, strict=True)}
 
 
-def _gm_enu_sigma_m(ce) -> np.ndarray:
+def _gm_enu_sigma_m(ce: CorrelatedErrorParams) -> np.ndarray:
     """(3,) metres: the east/north/up sigmas of ``correlated_error`` in the position domain."""
     return np.array([ce.sigma_m, ce.sigma_m, ce.sigma_m * ce.up_ratio])
 

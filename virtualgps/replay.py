@@ -173,15 +173,17 @@ def keep_freed_memory() -> bool:
     """Have glibc's malloc keep freed blocks of up to 32 MB for reuse in this process, in one
     arena.
 
-    Every chunk of a replay allocates and frees the same ~100 MB of numpy temporaries, blocks
-    of 0.1-3 MB. By default glibc serves such blocks with fresh mmaps (or trims the heap after
-    them), and the replay's second thread gets an arena of its own, trimmed apart, so every
-    chunk touches new pages, each a page fault that the kernel zero-fills: the 10 Hz hour took
-    120,000-175,000 faults and 0.25-0.45 s of system time; kept for reuse in one arena, 56,000-
-    58,000 and 0.16-0.19 s, and no slower on two cores (five whole processes each, alternately:
-    1.56-1.63 s against 1.58-1.96 s). The cost: the process keeps its peak heap until it exits,
-    so the ``virtualgps replay`` command calls this (it exits after its replay), not
-    :func:`run_replay`, which long-lived processes (the gap tool's workers) call too.
+    Every chunk of a replay allocates and frees the same numpy temporaries (~100 MB in chunks
+    of 4096 epochs), blocks of 0.1-3 MB. By default glibc serves such blocks with fresh mmaps
+    (or trims the heap after them), and the replay's second thread gets an arena of its own,
+    trimmed apart, so every chunk touches new pages, each a page fault that the kernel
+    zero-fills: the 10 Hz hour in chunks of 4096 took 120,000-175,000 faults and 0.25-0.45 s of
+    system time; kept for reuse in one arena, 56,000-58,000 and 0.16-0.19 s, and no slower on
+    two cores (five whole processes each, alternately: 1.56-1.63 s against 1.58-1.96 s); in
+    today's chunks of 2048, 43,000 faults and 0.10-0.11 s. The cost: the process keeps its
+    peak heap until it exits, so the ``virtualgps replay`` command calls this (it exits after
+    its replay), not :func:`run_replay`, which long-lived processes (the gap tool's workers)
+    call too.
     (M_MMAP_THRESHOLD -3, M_TRIM_THRESHOLD -1, M_ARENA_MAX -8 in glibc's malloc.h; 32 MB is
     the largest mmap threshold it accepts on 64-bit.)
 
