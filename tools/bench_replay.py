@@ -35,6 +35,7 @@ vary by +-20 %: the best of several runs is the code's speed.)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -114,9 +115,11 @@ def bench_core(
     return startup_s, runs_s, n
 
 
-def bench_live(profile: str, cfg_file: str | None, n_epochs: int, repeat: int) -> list[float]:
-    """Process CPU seconds per epoch of the daemon's per-epoch work, for each of ``repeat``
-    consecutive blocks of ``n_epochs`` epochs."""
+def bench_live(profile: str, cfg_file: str | None, n_epochs: int, repeat: int,
+               pause_s: float = 0.0) -> list[float]:
+    """CPU seconds per epoch of the daemon's per-epoch work, for each of ``repeat`` consecutive
+    blocks of ``n_epochs`` epochs: back to back, or each epoch after ``pause_s`` of sleep (as a
+    daemon runs them; the sleeps not counted)."""
     cfg = config.resolve({"profile": profile, "config": cfg_file})
     scene, georef, tle = config.load_scene_for(cfg)
     eph, _ = config.load_ephemeris(cfg, tle)
@@ -127,19 +130,30 @@ def bench_live(profile: str, cfg_file: str | None, n_epochs: int, repeat: int) -
     rng = np.random.default_rng(0)
     state = ReceiverState()
     sink = bytearray()
-    for k in range(-20, 0):  # warm up: lazy imports and caches, as a long-running daemon has
+
+    def epoch(k: int) -> None:
+        nonlocal state
         t = np.array([START_UNIX_S + k])
         p, v, ok = walk.pose_at(t)
         fixes, state = simulate(rx, t, p, v, ok, state, rng)
+        sink.extend(nmea.epoch_sentences(fixes, 0, fmt))
+
+    for k in range(-20, 0):  # warm up: lazy imports and caches, as a long-running daemon has
+        epoch(k)
     per_epoch_s = []
     for block in range(repeat):
+        spent_s = 0.0
         c0 = time.process_time()
         for k in range(block * n_epochs, (block + 1) * n_epochs):
-            t = np.array([START_UNIX_S + k])
-            p, v, ok = walk.pose_at(t)
-            fixes, state = simulate(rx, t, p, v, ok, state, rng)
-            sink += nmea.epoch_sentences(fixes, 0, fmt)
-        per_epoch_s.append((time.process_time() - c0) / n_epochs)
+            if pause_s:
+                time.sleep(pause_s)
+                c0 = time.process_time()
+            epoch(k)
+            if pause_s:
+                spent_s += time.process_time() - c0
+        if not pause_s:
+            spent_s = time.process_time() - c0
+        per_epoch_s.append(spent_s / n_epochs)
     return per_epoch_s
 
 
@@ -252,10 +266,22 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def bench_daemon(rate_hz: float, seconds: float, profile: str) -> float:
+def _sleeps(pid: int) -> int:
+    """Times the threads of a process have gone to sleep so far (voluntary context switches:
+    each is a wake-up later), from /proc."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # (a thread that ended meanwhile)
+            for line in (task / "status").read_text().splitlines():
+                if line.startswith("voluntary_ctxt_switches:"):
+                    total += int(line.split()[1])
+    return total
+
+
+def bench_daemon(rate_hz: float, seconds: float, profile: str) -> tuple[float, float]:
     """CPU seconds per epoch of a whole ``virtualgps run --poses demo`` process (simulation,
     NMEA, the pty writer's pacing, pose input) at ``rate_hz``, 115200 baud, with a client
-    reading the device, over ``seconds`` after a 5 s warm-up."""
+    reading the device, over ``seconds`` after a 5 s warm-up, and its wake-ups per epoch."""
     import subprocess
     import threading
 
@@ -281,13 +307,31 @@ def bench_daemon(rate_hz: float, seconds: float, profile: str) -> float:
 
             threading.Thread(target=drain, daemon=True).start()
             time.sleep(5.0)
-            c0 = _cpu_s(proc.pid)
+            c0, w0 = _cpu_s(proc.pid), _sleeps(proc.pid)
             time.sleep(seconds)
-            c1 = _cpu_s(proc.pid)
+            c1, w1 = _cpu_s(proc.pid), _sleeps(proc.pid)
         finally:
             proc.terminate()
             proc.wait()
-    return (c1 - c0) / (seconds * rate_hz)
+    return (c1 - c0) / (seconds * rate_hz), (w1 - w0) / (seconds * rate_hz)
+
+
+def wake_cost_s(sleep_s: float = 0.016, n: int = 300) -> float:
+    """CPU seconds a thread is charged for each wake-up from an ``epoll`` wait of ``sleep_s``
+    with no work in between (what the machine charges a daemon per wake-up: an epoch, a slice of
+    output; ~1 us on bare metal, tens of us on a VM). Median of ``n`` waits."""
+    import select
+
+    ep = select.epoll()
+    spent = []
+    try:
+        for _ in range(n):
+            c0 = time.thread_time()
+            ep.poll(sleep_s)
+            spent.append(time.thread_time() - c0)
+    finally:
+        ep.close()
+    return float(np.median(spent))
 
 
 def idle_penalty(pauses_s: tuple[float, ...] = (0.0, 0.09, 1.0), n: int = 14) -> list[float]:
@@ -340,10 +384,18 @@ def main() -> None:
         print(f"machine: a fixed workload takes {tight_s * 1e3:.2f} ms of CPU back to back, "
               f"{after_90ms_s * 1e3:.2f} ms after 90 ms of sleep ({after_90ms_s / tight_s:.1f}x), "
               f"{after_1s_s * 1e3:.2f} ms after 1 s ({after_1s_s / tight_s:.1f}x)")
+        wake_s = wake_cost_s()
+        print(f"machine: each wake-up from a 16 ms epoll wait costs {wake_s * 1e6:.0f} us of CPU")
+        tight = np.median(bench_live(args.profile, args.config, 200, 3))
+        after = np.median(bench_live(args.profile, args.config, 100, 3, pause_s=0.09))
+        print(f"the daemon's per-epoch work ({args.profile}, in-process): {tight * 1e3:.2f} ms "
+              f"of CPU back to back, {after * 1e3:.2f} ms after 90 ms of sleep "
+              f"({after / tight:.1f}x)")
         for rate in (1.0, 10.0):
-            per = bench_daemon(rate, args.seconds, args.profile)
+            per, wakes = bench_daemon(rate, args.seconds, args.profile)
             print(f"daemon at {rate:g} Hz ({args.profile}, 115200 baud, a client reading): "
-                  f"{per * 1e3:.2f} ms CPU per epoch, {100 * per * rate:.2f} % of a core")
+                  f"{per * 1e3:.2f} ms CPU per epoch, {100 * per * rate:.2f} % of a core; "
+                  f"{wakes:.1f} wake-ups per epoch (~{wakes * wake_s * 1e3:.2f} ms of it)")
         return
     if args.whole_process:
         bench_whole_process(args.repeat, args.profile)
