@@ -162,7 +162,8 @@ def test_each_receiver_of_a_fleet_emits_what_it_emits_alone(campus):
 def test_rows_give_the_bytes_of_one_receiver_simulated_epoch_by_epoch(campus):
     # The live loop simulates receivers as rows (ReceiverRows); one receiver's rows must be
     # what simulate() gives for its epochs one at a time (the code path of replay's batches).
-    from virtualgps.receiver import initial_state, simulate
+    from virtualgps.receiver import simulate
+    from virtualgps.receiver_state import initial_state
 
     cfg, scene, georef, eph = campus
     fleet = run_members(campus, [(3, 21, {}), (4, 22, {})], 300)

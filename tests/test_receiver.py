@@ -9,15 +9,8 @@ import pytest
 
 from virtualgps import geodesy, nmea
 from virtualgps.profiles import load_profile
-from virtualgps.receiver import (
-    Georef,
-    Receiver,
-    ReceiverState,
-    dop,
-    select_used,
-    simulate,
-    usarsim_sigma_m,
-)
+from virtualgps.receiver import Georef, Receiver, dop, select_used, simulate, usarsim_sigma_m
+from virtualgps.receiver_state import ReceiverState
 
 GEOREF = Georef(52.14, 11.64, 100.0)
 
@@ -225,7 +218,7 @@ def test_no_pose_gives_no_fix():
 
 
 def test_restart_blocks_the_fix_for_a_ttff_whose_mean_is_the_parameter():
-    from virtualgps.receiver import restart
+    from virtualgps.receiver_state import restart
 
     prof = load_profile("holux-m1000", {"cold_start": {"ttff_cold_s": 35.0, "ttff_hot_s": 1.0}})
     rng = np.random.default_rng(11)
@@ -533,7 +526,7 @@ def test_a_static_receiver_prints_doppler_speed_noise_and_a_wandering_course():
 
 
 def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges():
-    from virtualgps.receiver import restart
+    from virtualgps.receiver_state import restart
 
     prof = load_profile("ideal", {"cold_start": {"ttff_cold_s": 10.0, "ttff_sd_frac": 0.0,
                                                  "decode_spread_s": 20.0,
@@ -620,7 +613,8 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     """The fix error is the WLS solution of sigma(el, d) z on the unblocked satellites (the
     first epoch draws the stationary process: x = z), and nothing beyond max_dist_m."""
     from virtualgps import errors
-    from virtualgps.receiver import draw_layout, error_processes, position_errors
+    from virtualgps.receiver import error_processes, position_errors
+    from virtualgps.receiver_state import draw_layout
 
     mp = {"enabled": True, "sigma_m": 4.0, "el0_deg": 15.0, "max_dist_m": 30.0}
     on = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}, "multipath": mp})

@@ -9,7 +9,8 @@ import pytest
 from tests.test_receiver import GEOREF, FixedSky, WallOnAzimuth
 from virtualgps import signals
 from virtualgps.profiles import load_profile
-from virtualgps.receiver import Receiver, ReceiverState, simulate
+from virtualgps.receiver import Receiver, simulate
+from virtualgps.receiver_state import ReceiverState
 
 
 def test_tracking_hysteresis_by_hand():

@@ -15,7 +15,8 @@ from virtualgps import nmea, skymask
 from virtualgps.cli import main, sky_rows
 from virtualgps.exceptions import InputFileError
 from virtualgps.profiles import load_profile, read_toml
-from virtualgps.receiver import Receiver, ReceiverState, simulate
+from virtualgps.receiver import Receiver, simulate
+from virtualgps.receiver_state import ReceiverState
 from virtualgps.sky import compute_sky
 
 INF = float("inf")

@@ -48,7 +48,8 @@ import numpy as np
 from virtualgps import config, nmea, pose, replay
 from virtualgps.cli import main as cli_main
 from virtualgps.daemon import LoopProvider, demo_lap
-from virtualgps.receiver import ReceiverState, simulate
+from virtualgps.receiver import simulate
+from virtualgps.receiver_state import ReceiverState
 
 START_UNIX_S = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the Magdeburg waypoint logs
 

@@ -16,7 +16,8 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.ephemeris import default_tle_path, load_tle
 from virtualgps.profiles import load_profile
-from virtualgps.receiver import Georef, Receiver, ReceiverState, simulate
+from virtualgps.receiver import Georef, Receiver, simulate
+from virtualgps.receiver_state import ReceiverState
 
 
 def main() -> None:

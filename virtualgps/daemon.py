@@ -27,15 +27,8 @@ import numpy as np
 from virtualgps import mtk, nmea, pose
 from virtualgps.exceptions import PoseError
 from virtualgps.profiles import Profile
-from virtualgps.receiver import (
-    Georef,
-    Receiver,
-    ReceiverRows,
-    ReceiverState,
-    initial_state,
-    restart,
-    simulate,
-)
+from virtualgps.receiver import Georef, Receiver, simulate
+from virtualgps.receiver_state import ReceiverRows, ReceiverState, initial_state, restart
 from virtualgps.records import Fixes
 from virtualgps.sky import compute_sky
 

@@ -15,7 +15,8 @@ from typing import BinaryIO, TextIO
 import numpy as np
 
 from virtualgps import nmea, pose
-from virtualgps.receiver import Georef, Receiver, initial_state, simulate
+from virtualgps.receiver import Georef, Receiver, simulate
+from virtualgps.receiver_state import initial_state
 from virtualgps.records import Fixes
 from virtualgps.sky import compute_sky
 

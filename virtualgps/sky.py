@@ -82,7 +82,7 @@ class Sky:
     def rows(self) -> Sky:
         """The sky of a batch of antennas at one epoch each, as rows: every array's first two
         axes ``(n_rx, 1)`` merged into one (the rows :func:`virtualgps.receiver.simulate` takes
-        with :class:`~virtualgps.receiver.ReceiverRows`).
+        with :class:`~virtualgps.receiver_state.ReceiverRows`).
 
         Returns
         -------

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from virtualgps.profiles import Profile
-from virtualgps.receiver import Georef, Receiver, ReceiverState, initial_state, simulate
+from virtualgps.receiver import Georef, Receiver, simulate
+from virtualgps.receiver_state import ReceiverState, initial_state
 from virtualgps.sky import Sky, compute_sky
 
 # A worker keeps at most this many skies (one per run and sky-relevant profile settings).
