@@ -110,6 +110,65 @@ def test_sky_from_a_rinex_navigation_file(shared_data):
     assert max(abs(s["el_deg"] - el_tle[s["prn"]]) for s in common) < 0.1
 
 
+def test_coverage_is_where_some_satellite_has_an_orbit(shared_data):
+    nav = load_ephemeris_file(shared_data / NAV)
+    first, last = nav.coverage_unix_s
+    assert last - first > 24 * 3600.0  # a day's file: 2020-05-13T20Z .. 2020-05-15T04Z
+    inside = nav.sat_ecef_m(np.array([first + 1.0, last - 1.0]))
+    outside = nav.sat_ecef_m(np.array([first - 1.0, last + 1.0]))
+    assert np.isfinite(inside).any(axis=(1, 2)).all()
+    assert np.isnan(outside).all()
+
+
+def test_a_time_outside_the_navigation_file_is_said_not_an_empty_sky(shared_data, tmp_path):
+    """sky at a time the file does not cover: one error line naming its span, not an empty
+    table; replay there: a warning that there will be no fix (and the epochs, without one)."""
+    cli = [sys.executable, "-m", "virtualgps"]
+    nav = str(shared_data / NAV)
+    r = subprocess.run([*cli, "sky", "--scene", "none", "--lla", "37.42,-122.08,0", "--tle", nav,
+                        "--time", "2020-05-16T09:00:00Z"], capture_output=True, text=True,
+                       timeout=120)
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert r.returncode == 2 and len(errors) == 1, r.stderr
+    assert "2020-05-13T19:59" in errors[0] and "2020-05-15T03:59" in errors[0]
+    assert "--time" in errors[0] and r.stdout == ""
+    walk = tmp_path / "w.jsonl"
+    walk.write_text("".join(json.dumps({"t": 1589619600.0 + k, "lat": 37.42, "lon": -122.08,
+                                        "alt": 10.0}) + "\n" for k in range(5)))
+    out = tmp_path / "o.nmea"
+    for start, covered in (("2020-05-16T09:00:00Z", False), ("2020-05-14T22:00:00Z", True)):
+        r = subprocess.run([*cli, "replay", str(walk), "--scene", "none", "--tle", nav,
+                            "--start-time", start, "--profile", "ideal", "--out", str(out)],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert ("no satellite, no fix" in r.stderr) is not covered, r.stderr
+        quality = {ln.split(",")[6] for ln in out.read_text().splitlines()
+                   if ln.startswith("$GPGGA")}
+        assert quality == ({"1"} if covered else {"0"})
+
+
+def test_gap_refuses_a_navigation_file_that_misses_the_log(shared_data, tmp_path):
+    """A log three days after the file (within the days a set is used unshifted): the
+    simulation would have no satellite, so the gap tool says which file misses which run."""
+    cli = [sys.executable, "-m", "virtualgps"]
+    walk = tmp_path / "w.jsonl"
+    walk.write_text("".join(json.dumps({"t": 1589709600.0 + k, "lat": 37.42, "lon": -122.08,
+                                        "alt": 10.0}) + "\n" for k in range(20)))
+    real = tmp_path / "real17.nmea"  # 2020-05-17T10:00Z, its sky from the TLE set
+    r = subprocess.run([*cli, "replay", str(walk), "--scene", "none", "--tle",
+                        str(shared_data / TLE), "--profile", "ideal", "--out", str(real)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([*cli, "gap", "--real", str(real), "--truth", "static:37.42,-122.08,10",
+                        "--scene", "none", "--tle", str(shared_data / NAV), "--seeds", "2",
+                        "--out", str(tmp_path / "gap")], capture_output=True, text=True,
+                       timeout=120)
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert r.returncode == 2 and len(errors) == 1, r.stderr
+    assert "real17" in errors[0] and "not at 2020-05-17T10:00:00Z" in errors[0]
+    assert not (tmp_path / "gap" / "report.json").exists()
+
+
 def test_bad_rinex_file_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.20n"
     bad.write_text("     2              NAVIGATION DATA                         RINEX VERSION / "

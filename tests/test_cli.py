@@ -356,6 +356,9 @@ BAD_ARGUMENTS = [
     (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--origin", "-33.86,151.21,50",
       "--scene", "none"], 0),
     (["run", "--duration", "1", "--poses", "{tmp}/no-such.jsonl"], "No such file or directory"),
+    (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--seed", "-5"], "non-negative integer"),
+    (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--config", "{seedcfg}"],
+     "seed must be a non-negative integer"),
 ]
 
 
@@ -366,8 +369,9 @@ def test_bad_arguments_are_one_clear_line_and_valid_ones_run(tmp_path, args, exp
     the problem and a non-zero exit, never a traceback; negative coordinates work as typed."""
     files = {"tmp": tmp_path, "walk": write_walk(tmp_path / "walk.jsonl", n=6),
              "empty": tmp_path / "empty.jsonl", "binary": tmp_path / "binary.jsonl",
-             "iss": tmp_path / "iss.tle"}
+             "iss": tmp_path / "iss.tle", "seedcfg": tmp_path / "seed.toml"}
     files["empty"].write_bytes(b"")
+    files["seedcfg"].write_text("seed = 1.5\n")
     files["binary"].write_bytes(b"\xff\xfe\x00{\"t\": 1}\n")
     files["iss"].write_text("ISS (ZARYA)\n"
                             + _tle_line("1 25544U 98067A   17084.52385417  .00002182  00000-0  "

@@ -506,6 +506,19 @@ def test_lookup_table_interpolates_between_rows(c2020):
     )
 
 
+def test_a_time_outside_the_lookup_table_is_named(c2020):
+    from virtualgps.config import coverage_note
+
+    table = build_lookup_table(c2020, c2020.epoch_center_unix_s, 600.0, 60.0)
+    first, last = table.coverage_unix_s
+    assert coverage_note(table, first) is None and coverage_note(table, last) is None
+    assert np.isfinite(table.sat_ecef_m(np.array([first, last]))).all()
+    assert np.isnan(table.sat_ecef_m(np.array([first - 1.0, last + 1.0]))).all()
+    note = coverage_note(table, last + 1.0)
+    assert note is not None and table.source in note and "not at" in note
+    assert coverage_note(c2020, last + 1e9) is None  # SGP4 propagates to any time
+
+
 def test_hermite_is_exact_for_cubics():
     # Independent reference: a cubic in time is reproduced exactly by cubic Hermite from its
     # values and derivatives at unevenly spaced rows.

@@ -79,8 +79,17 @@ class BroadcastEphemeris:
     @property
     def epoch_center_unix_s(self) -> float:
         """Middle of the records' toe span, UTC Unix seconds (for the sky-time policy)."""
-        mid = 0.5 * (self.toe_gps_s.min() + self.toe_gps_s.max()) + GPS_EPOCH_UNIX_S
-        return float(mid - gps_minus_utc_s(mid))
+        first, last = self.coverage_unix_s
+        return 0.5 * (first + last)
+
+    @property
+    def coverage_unix_s(self) -> tuple[float, float]:
+        """The first and last UTC Unix seconds at which some record serves (``MAX_AGE_S``
+        either side of the toes)."""
+        ends = np.array([self.toe_gps_s.min() - MAX_AGE_S, self.toe_gps_s.max() + MAX_AGE_S])
+        ends += GPS_EPOCH_UNIX_S
+        ends -= gps_minus_utc_s(ends)
+        return float(ends[0]), float(ends[1])
 
     def record_index(self, t_gps_s: F64) -> NDArray[np.int64]:
         """(n_t, n_sat) the record serving each satellite at each GPS time (-1: none)."""

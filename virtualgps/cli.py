@@ -385,6 +385,9 @@ def cmd_sky(args: argparse.Namespace) -> int:
         georef = config.require_georef(georef, "--lla")
         at = _xyz(args.at, "--at") if args.at else np.array([0.0, 0.0, 1.5])
     # --time is taken literally: no sky-time mapping here.
+    note = config.coverage_note(ephemeris, t)
+    if note:
+        raise VirtualGPSError(f"{note} (give --time within it)")
     rx = config.make_receiver(cfg, scene, georef, ephemeris, t, apply_sky_policy=False)
     sky = compute_sky(rx, np.array([t]), at[None, :])
     rows = sky_rows(rx, sky)

@@ -135,12 +135,16 @@ def resolve(flags: dict[str, Any]) -> RunConfig:
         origin = _georef_from_table(run["georef"], str(flags.get("config")))
     start = pick("start_time")
     seed = pick("seed")
+    if seed is not None and (type(seed) is not int or seed < 0):
+        # (numpy's generators take no negative seed; a float or a string is a typo)
+        where = "--seed" if flags.get("seed") is not None else f"{flags.get('config')}: seed"
+        raise ConfigError(f"{where} must be a non-negative integer, not {seed!r}")
     return RunConfig(
         profile=profile,
         scene=str(pick("scene")) if pick("scene") is not None else None,
         tle=str(pick("tle")) if pick("tle") is not None else None,
         origin=origin,
-        seed=int(seed) if seed is not None else 0,
+        seed=seed if seed is not None else 0,
         start_time_unix_s=parse_time(start) if isinstance(start, str) else start,
         extra={k: run[k] for k in run if k not in ("scene", "tle", "seed", "start_time", "origin")},
     )
@@ -252,9 +256,38 @@ def make_receiver(
                 (t_start_unix_s - ephemeris.epoch_center_unix_s) / 86400.0,
                 shift / 86400.0,
             )
+    note = coverage_note(ephemeris, t_start_unix_s - shift)
+    if note:
+        log.warning("%s: no satellite, no fix (give --start-time within it)", note)
     return Receiver(
         profile=cfg.profile, ephemeris=ephemeris, scene=scene, georef=georef, sky_shift_s=shift
     )
+
+
+def coverage_note(ephemeris, t_unix_s: float) -> str | None:
+    """Say when ``ephemeris`` gives no satellite position at ``t_unix_s``.
+
+    Broadcast orbits (RINEX navigation files) serve a few hours either side of their records
+    and lookup tables only their own span; outside, every satellite is NaN and a run has an
+    empty sky, which without a word looks like a broken receiver. TLE sets propagate to any
+    time (see the sky-time policy for how far they are trusted).
+
+    Parameters
+    ----------
+    ephemeris : Constellation, BroadcastEphemeris or LookupTable
+    t_unix_s : UTC seconds at which the sky is computed (after any sky-time shift)
+
+    Returns
+    -------
+    note : None where covered (or always covered), else a sentence naming the source and the
+        span it covers
+    """
+    span = getattr(ephemeris, "coverage_unix_s", None)
+    if span is None or span[0] <= t_unix_s <= span[1]:
+        return None
+    first, last, at = (time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+                       for t in (*span, t_unix_s))
+    return f"{ephemeris.source} gives satellite positions from {first} to {last}, not at {at}"
 
 
 def require_georef(georef: Georef | None, what: str) -> Georef:

@@ -546,6 +546,11 @@ class LookupTable:
         """
         return float(0.5 * (self.t_unix_s[0] + self.t_unix_s[-1]))
 
+    @property
+    def coverage_unix_s(self) -> tuple[float, float]:
+        """The first and last UTC Unix seconds of the table (NaN outside)."""
+        return float(self.t_unix_s[0]), float(self.t_unix_s[-1])
+
     def sat_state_ecef(self, t_unix_s: ArrayLike) -> tuple[F64, F64]:
         """Interpolate positions and velocities at the given times.
 

@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 
 from virtualgps import ephemeris as eph
+from virtualgps.config import coverage_note
+from virtualgps.exceptions import ConfigError
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.where import Obs, RunView, tracked_fractions
@@ -98,7 +100,6 @@ def load_inputs(inp: GapInputs):
     runs, scene, scene_path, tle_path, profile_table, profile_source
     """
     from virtualgps.config import scene_path as resolve_scene
-    from virtualgps.exceptions import ConfigError
     from virtualgps.gap.ingest import load_run
 
     if not inp.real:
@@ -150,6 +151,12 @@ def diagnose(
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
 
+    for r in runs_in:  # (an orbit file that misses a run would leave its sky empty)
+        t = r.epochs.t_unix_s
+        for t_at in (float(t[0]), float(t[-1])):
+            if note := coverage_note(ephem, t_at - shift(float(t[0]))):
+                raise ConfigError(f"{r.name}: {note} (give --tle the navigation file of the "
+                                  "log's day)")
     say(f"{len(runs_in)} run(s) read; ephemeris {Path(tle).name}; simulating along their truth")
     notes = {r.name: n for r in runs_in
              if (n := sky_note(ephem.epoch_center_unix_s, float(r.epochs.t_unix_s[0])))}
