@@ -356,6 +356,8 @@ BAD_ARGUMENTS = [
     (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--origin", "-33.86,151.21,50",
       "--scene", "none"], 0),
     (["run", "--duration", "1", "--poses", "{tmp}/no-such.jsonl"], "No such file or directory"),
+    (["run", "--duration", "0", "--poses", "demo"], "--duration must be positive"),
+    (["run", "--duration", "-1", "--poses", "demo"], "--duration must be positive"),
     (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--seed", "-5"], "non-negative integer"),
     (["replay", "{walk}", "--out", "{tmp}/x.nmea", "--config", "{seedcfg}"],
      "seed must be a non-negative integer"),

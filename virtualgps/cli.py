@@ -229,6 +229,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from virtualgps import daemon
     from virtualgps.fleet.run import build_fleet
 
+    if args.duration is not None and not args.duration > 0:  # (0 used to mean "for ever")
+        raise VirtualGPSError(f"--duration must be positive seconds, got {args.duration:g}")
     # (Before the devices exist: a signal while a thousand are being made still removes them.)
     stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -240,7 +242,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         dev = r.device
         print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
               flush=True)
-    if args.duration:
+    if args.duration is not None:
         timer = threading.Timer(args.duration, stop.set)
         timer.daemon = True
         timer.start()
