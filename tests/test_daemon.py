@@ -97,6 +97,39 @@ def test_live_loop_fix_rules_and_epoch_times(receiver):
     assert all(e.startswith(b"$GPGGA") and e.endswith(b"\r\n") for e in sink.epochs[1:])
 
 
+def test_a_line_too_slow_for_the_epochs_is_warned_of_once(monkeypatch, caplog):
+    monkeypatch.setattr(daemon, "_LINE_WARNED", set())
+    sizes = [400] * 10  # 400 bytes at 10 Hz: 40,000 bits a second, 8N1
+    with caplog.at_level("WARNING", logger="virtualgps.daemon"):
+        assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)
+        assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)  # too slow, but said already
+        assert not daemon.warn_if_line_too_slow(sizes, 10.0, 57600)
+        assert not daemon.warn_if_line_too_slow(sizes, 1.0, 9600)
+        assert not daemon.warn_if_line_too_slow(sizes, 10.0, None)  # a file: no line
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 1
+    assert "needs 40000 baud" in warnings[0] and "carries 96 %" in warnings[0]
+
+
+@pytest.mark.parametrize(("baud", "warned"), [(9600, True), (115200, False)])
+def test_the_live_loop_warns_when_its_line_cannot_carry_the_rate(receiver, monkeypatch, caplog,
+                                                                 baud, warned):
+    cfg, rx = receiver  # 10 Hz
+    monkeypatch.setattr(daemon, "_LINE_WARNED", set())
+    clock = daemon.SimClock(START)
+    good = json.dumps({"x": 0.0, "y": 0.0, "z": 1.5}).encode()
+    provider = daemon.LiveProvider(FakeSource(clock, [(clock.now_unix_s(), good)]), rx.georef,
+                                   clock, cfg.profile.pose_timeout_s)
+    sink = Sink()
+    sink.baud = baud
+    with caplog.at_level("WARNING", logger="virtualgps.daemon"):
+        daemon.run_daemon(rx, provider, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea),
+                          clock, np.random.default_rng(0), threading.Event(), max_epochs=12)
+    sizes = [len(e) for e in sink.epochs[1:]]
+    assert min(sizes) * 10 * 10 > 9600 and max(sizes) * 10 * 10 < 115200
+    assert any("baud" in r.getMessage() for r in caplog.records) is warned
+
+
 def test_demo_lap_walks_the_loop_at_the_set_speed():
     scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
     lap = daemon.demo_lap(scene.demo_waypoints_enu_m, 1.4)

@@ -281,12 +281,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     bad = getattr(provider, "bad", None)
     unknown = getattr(provider, "unknown_ids", None)
     s = [r.stats for r in receivers]
+    dropped = sum(getattr(r.device, "dropped_epochs", 0) for r in receivers)
     log.info(
-        "stopped after %d epochs (%d with a fix, %d late, %d skipped)%s%s",
+        "stopped after %d epochs (%d with a fix, %d late, %d skipped%s)%s%s",
         sum(x.epochs for x in s),
         sum(x.fixes for x in s),
         sum(x.late_epochs for x in s),
         sum(x.skipped_epochs for x in s),
+        f", {dropped} dropped before a client read them" if dropped else "",
         f"; malformed pose messages: {dict(bad)}" if bad else "",
         f"; pose messages for unknown receivers: {sum(unknown.values())} "
         f"(ids {sorted(unknown)[:10]})" if unknown else "",

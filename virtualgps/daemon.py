@@ -18,7 +18,7 @@ import select
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -494,6 +494,9 @@ class LiveReceiver:
         self.stats = DaemonStats(link=link)
         self.n_sat = len(rx.ephemeris.prn)
         self.recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs
+        # Whether the line carries the output is looked at every few epochs, from the last
+        # epochs' sizes (afresh after a client changes the rate, the baud or the sentences).
+        self._line_check_at = self.recent_sizes.maxlen
         self.t_last: float | None = None
         self.applied = link.settings if link is not None else None  # the settings in effect
         t_from = clock.now_unix_s() if t_first_unix_s is None else t_first_unix_s
@@ -565,6 +568,10 @@ class LiveReceiver:
                 log.info("client set the fix interval to %d ms", new.fix_interval_ms)
             if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
                 self.out_fmt = _format_for(self.base_fmt, new, link.defaults, self.rate)
+            if (new.baud, new.rates, new.fix_interval_ms) != (old.baud, old.rates,
+                                                              old.fix_interval_ms):
+                self.recent_sizes.clear()
+                self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
             if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
                 self.rx = apply_link_settings(self.rx, new)
                 log.info("client set SBAS %s, static navigation %.2f m/s",
@@ -576,6 +583,9 @@ class LiveReceiver:
         if data is not None:
             self.device.write_epoch(data)
             self.recent_sizes.append(len(data))
+        if self.stats.epochs >= self._line_check_at:  # (every few epochs: a fix lengthens them)
+            self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
+            warn_if_line_too_slow(self.recent_sizes, self.rate, getattr(self.device, "baud", None))
         self.t_last = self.t_next_unix_s
         self.stats.epochs += 1
         self.stats.fixes += int(has_fix)
@@ -586,6 +596,41 @@ class LiveReceiver:
         if k_now > self.k:
             self.stats.skipped_epochs += k_now - self.k
             self.k = k_now
+
+
+_LINE_WARNED: set[tuple[float, int]] = set()  # (rate, baud) already warned of, once a process
+
+
+def warn_if_line_too_slow(sizes: Sequence[int], rate_hz: float, baud: int | None) -> bool:
+    """Warn (once per rate and baud in a process) when the epochs need more than the serial
+    line carries: the device then drops the oldest whole epochs to keep its output fresh, and
+    a client sees fewer epochs than the rate, as behind a real receiver set to a rate its baud
+    cannot carry (MTK's PMTK220 notes: 10 Hz wants 115200 baud or fewer sentences).
+
+    Parameters
+    ----------
+    sizes : bytes of the last epochs
+    rate_hz : epochs per second
+    baud : the line's bits per second (8N1: 10 bits a byte); None for a device without a line
+
+    Returns
+    -------
+    bool : whether the line is too slow
+    """
+    if baud is None or not sizes:
+        return False
+    need_baud = 10.0 * rate_hz * sum(sizes) / len(sizes)
+    if need_baud <= baud:
+        return False
+    if (rate_hz, baud) not in _LINE_WARNED:
+        _LINE_WARNED.add((rate_hz, baud))
+        log.warning(
+            "at %g Hz an epoch of ~%d bytes needs %d baud: the %d-baud line carries %.0f %% of "
+            "the epochs, the rest are dropped (raise the baud rate, e.g. --baud 115200 or "
+            "$PMTK251, lower the rate, or switch sentences off with $PMTK314)",
+            rate_hz, round(sum(sizes) / len(sizes)), math.ceil(need_baud), baud,
+            100.0 * baud / need_baud)
+    return True
 
 
 def poses_at(
