@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -387,3 +388,25 @@ def test_bad_arguments_are_one_clear_line_and_valid_ones_run(tmp_path, args, exp
         return
     errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
     assert r.returncode != 0 and len(errors) == 1 and expect in errors[0], r.stderr
+
+
+def test_a_live_run_says_where_poses_go_and_when_none_has_come(tmp_path, monkeypatch, caplog):
+    """A user who starts `run` and sends nothing must learn where poses are expected, and
+    after a while that none has arrived (else: a receiver without a fix and no word why)."""
+    from virtualgps import cli
+
+    monkeypatch.setattr(cli, "NO_POSE_WARNING_S", 0.5)
+    args = ["run", "--scene", "none", "--origin", "52.14,11.64,100", "--rate", "5",
+            "--link", str(tmp_path / "gps"), "--duration", "1.5"]
+    with caplog.at_level("INFO", logger="virtualgps"):
+        assert main([*args, "--poses", "udp://127.0.0.1:0"]) == 0
+    said = [r.getMessage() for r in caplog.records]
+    where = [m for m in said if m.startswith("poses: udp://127.0.0.1:")]
+    assert len(where) == 1 and "no fix before the first" in where[0], said
+    port = re.match(r"poses: udp://127\.0\.0\.1:(\d+),", where[0])
+    assert port and int(port[1]) > 0  # the port bound, which a sender needs
+    assert sum("no pose has arrived on udp://127.0.0.1:" in m for m in said) == 1
+    caplog.clear()
+    with caplog.at_level("INFO", logger="virtualgps"):
+        assert main([*args, "--poses", "demo"]) == 0
+    assert not any(r.getMessage().startswith(("poses:", "no pose")) for r in caplog.records)

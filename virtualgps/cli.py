@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import re
 import signal
@@ -28,6 +29,7 @@ log = logging.getLogger("virtualgps")
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command stopped by Ctrl-C
+NO_POSE_WARNING_S = 10.0  # a live run that has had no pose this long says so, once
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -249,8 +251,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     status = StatusLine(sys.stdout)
     last_fixes: dict[int, Any] = {}
     shown = [0.0]
+    source = getattr(fleet.provider, "source", None)  # a live stream (UDP, TCP, stdin)
+    where = None if source is None else (
+        "standard input" if source.describe() == "-" else source.describe())
+    if where is not None:
+        log.info('poses: %s, one JSON pose per message (e.g. {"t": UTC s, "x": .., "y": .., '
+                 '"z": ..} in the scene\'s metres, or "lat", "lon", "alt"); no fix before the '
+                 "first", where)
+    no_pose_by = time.monotonic() + NO_POSE_WARNING_S
 
     def on_epoch(r, fixes, row) -> None:
+        nonlocal no_pose_by
+        if where is not None and time.monotonic() > no_pose_by:
+            no_pose_by = math.inf
+            if fleet.provider.n_good == 0:
+                log.warning("no pose has arrived on %s in %g s: the receiver has no fix until "
+                            "one does (or try --poses demo)", where, NO_POSE_WARNING_S)
         if not status.active:
             return
         if len(receivers) == 1:
@@ -288,7 +304,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         sum(x.fixes for x in s),
         sum(x.late_epochs for x in s),
         sum(x.skipped_epochs for x in s),
-        f", {dropped} dropped before a client read them" if dropped else "",
+        f", {dropped} dropped unread" if dropped else "",
         f"; malformed pose messages: {dict(bad)}" if bad else "",
         f"; pose messages for unknown receivers: {sum(unknown.values())} "
         f"(ids {sorted(unknown)[:10]})" if unknown else "",
