@@ -570,7 +570,8 @@ class LiveReceiver:
                 self.out_fmt = _format_for(self.base_fmt, new, link.defaults, self.rate)
             if (new.baud, new.rates, new.fix_interval_ms) != (old.baud, old.rates,
                                                               old.fix_interval_ms):
-                self.recent_sizes.clear()
+                # (recent_sizes is kept: the link's too-fast check of $PMTK220 needs it; by
+                # the next check it holds only epochs made after the change)
                 self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
             if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
                 self.rx = apply_link_settings(self.rx, new)
