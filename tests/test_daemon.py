@@ -130,6 +130,30 @@ def test_the_live_loop_warns_when_its_line_cannot_carry_the_rate(receiver, monke
     assert any("baud" in r.getMessage() for r in caplog.records) is warned
 
 
+def test_a_fix_interval_the_new_baud_cannot_carry_is_refused(receiver):
+    """$PMTK251 to 9600 baud, then (in a later read) $PMTK220 for 100 ms epochs of ~400
+    bytes: MTK firmware refuses the interval the line cannot carry (PMTK001,220,2); the line
+    check that follows the baud change must not make the link forget the epochs' size."""
+    from virtualgps import mtk
+
+    cfg, rx = receiver
+    clock = daemon.SimClock(START)
+    sink = Sink()
+    client = [nmea.format_sentence(c).encode() for c in ("PMTK251,9600", "PMTK220,100")]
+    sink.read_available = lambda: client.pop(0) if client else b""
+    member = daemon.LiveReceiver(rx, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea), clock,
+                                 np.random.default_rng(0))
+    walk = daemon.LoopProvider(daemon.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5]]), 1.4),
+                               START, 2.0)
+    for _ in range(3):
+        (group, fixes, data), = daemon.tick([member], walk)
+        member.sent(data[0], bool(fixes.quality[0] > 0))
+    assert min(len(e) for e in sink.epochs[1:]) > 96  # 100 ms at 9600 baud
+    member.service_client()
+    member.service_client()
+    assert sink.epochs[-2:] == [mtk.ack(251, 3).encode(), mtk.ack(220, 2).encode()]
+
+
 def test_demo_lap_walks_the_loop_at_the_set_speed():
     scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
     lap = daemon.demo_lap(scene.demo_waypoints_enu_m, 1.4)
