@@ -32,7 +32,7 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command stopped by 
 NO_POSE_WARNING_S = 10.0  # a live run that has had no pose this long says so, once
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def _common(p: argparse.ArgumentParser, start_time_help: str | None) -> None:
     p.add_argument(
         "--scene",
         help="scene folder or scene.toml, a bundled scene name, or 'none' "
@@ -52,7 +52,8 @@ def _common(p: argparse.ArgumentParser) -> None:
         "newest bundled set)",
     )
     p.add_argument("--rate", type=float, help="output rate in Hz (default: the profile's, 1 Hz)")
-    p.add_argument("--start-time", help="simulated UTC start, ISO 8601 (default: now)")
+    if start_time_help is not None:  # (sky has --time instead: one moment, taken literally)
+        p.add_argument("--start-time", help=start_time_help)
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--origin", help="LAT,LON,ALT_HAE of the scene origin (overrides the scene)")
     p.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
@@ -73,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Create the device, print its path, emit one epoch per "
         "period until SIGINT/SIGTERM.",
     )
-    _common(run)
+    _common(run, "simulated UTC start, ISO 8601 (default: now)")
     run.add_argument(
         "--poses",
         default="udp://127.0.0.1:5600",
@@ -101,14 +102,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the receiver over a pose log as fast as possible",
         description="Replay a pose log (JSONL, CSV, TUM, NMEA, ROS 1/2 bag) and write NMEA.",
     )
-    _common(rep)
+    _common(rep, "simulated UTC of the log's first pose, ISO 8601: the log is shifted to "
+                 "start then (default: its own times)")
     rep.add_argument("poses", help="pose log file")
     rep.add_argument("--out", required=True, help="NMEA output file ('-' for stdout)")
     rep.add_argument("--fixes", help="also write one CSV row per epoch here")
     rep.add_argument("--topic", help="the pose topic, for a ROS bag with several")
 
     sky = sub.add_parser("sky", help="what the antenna sees at one place and time")
-    _common(sky)
+    _common(sky, None)
     where = sky.add_mutually_exclusive_group()
     where.add_argument("--at", help="X,Y,Z antenna position in scene ENU metres (default 0,0,1.5)")
     where.add_argument("--lla", help="LAT,LON,ALT_HAE antenna position")
