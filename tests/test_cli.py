@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 import subprocess
 import sys
@@ -410,3 +411,44 @@ def test_a_live_run_says_where_poses_go_and_when_none_has_come(tmp_path, monkeyp
     with caplog.at_level("INFO", logger="virtualgps"):
         assert main([*args, "--poses", "demo"]) == 0
     assert not any(r.getMessage().startswith(("poses:", "no pose")) for r in caplog.records)
+
+
+def test_a_run_whose_line_cannot_carry_its_rate_says_so_and_counts_the_loss(tmp_path, caplog):
+    """10 Hz at 9600 baud with a client reading: the line warning, and the closing line counts
+    the epochs dropped unread; a run nobody reads counts none (nobody missed them)."""
+    from virtualgps import daemon
+
+    daemon._LINE_WARNED.clear()
+    link = tmp_path / "gps"
+    got = bytearray()
+
+    def read() -> None:
+        for _ in range(200):
+            if link.exists():
+                break
+            threading.Event().wait(0.02)
+        fd = os.open(link, os.O_RDONLY | os.O_NOCTTY)
+        try:
+            while chunk := os.read(fd, 4096):
+                got.extend(chunk)
+        except OSError:
+            pass  # EIO: the daemon closed the pty
+        finally:
+            os.close(fd)
+
+    args = ["run", "--scene", "none", "--origin", "52.14,11.64,100", "--poses", "demo",
+            "--rate", "10", "--link", str(link), "--duration", "2.5"]
+    reader = threading.Thread(target=read)
+    reader.start()
+    with caplog.at_level("INFO", logger="virtualgps"):
+        assert main([*args, "--baud", "9600"]) == 0
+    reader.join(timeout=10)
+    said = [r.getMessage() for r in caplog.records]
+    assert any("needs" in m and "the 9600-baud line carries" in m for m in said), said
+    dropped = re.search(r"stopped after (\d+) epochs .*, (\d+) dropped unread\)", said[-1])
+    assert dropped and int(dropped[2]) > int(dropped[1]) // 2, said[-1]
+    assert got.count(b"$GPGGA") < int(dropped[1]) - int(dropped[2]) + 2  # what got through
+    caplog.clear()
+    with caplog.at_level("INFO", logger="virtualgps"):
+        assert main([*args, "--baud", "115200"]) == 0  # no reader now
+    assert "dropped" not in caplog.records[-1].getMessage()
