@@ -214,18 +214,22 @@ def _status_text(fixes, stats, device) -> str:
         fix = "3D fix"
     else:
         where, fix = "", "no fix"
-    dropped = getattr(device, "dropped_epochs", 0)
+    dropped = _lost_epochs([device])
     extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
     return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
+
+
+def _lost_epochs(devices) -> int:
+    """Epochs the devices dropped that a client or a port should have had. (A pty nobody
+    opened drops what nobody reads, as it should: only devices that wrote, to a client or a
+    port, count, where a slow line or client lost epochs.)"""
+    return sum(getattr(d, "dropped_epochs", 0) for d in devices if getattr(d, "written_bytes", 0))
 
 
 def _fleet_status(receivers, last: dict) -> str:
     n_fix = sum(1 for fix, _ in last.values() if fix)
     epochs = sum(r.stats.epochs for r in receivers)
-    # (A pty nobody opened drops what nobody reads, as it should: only devices that wrote,
-    # to a client or a port, count, where a slow line or client lost epochs.)
-    dropped = sum(getattr(r.device, "dropped_epochs", 0) for r in receivers
-                  if getattr(r.device, "written_bytes", 0))
+    dropped = _lost_epochs([r.device for r in receivers])
     t = max((t for _, t in last.values()), default=0.0)
     extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
     return (f"{time.strftime('%H:%M:%S', time.gmtime(t))}Z  {len(receivers)} receivers, "
@@ -302,10 +306,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     bad = getattr(provider, "bad", None)
     unknown = getattr(provider, "unknown_ids", None)
     s = [r.stats for r in receivers]
-    # (A pty nobody opened drops what nobody reads, as it should: only devices that wrote,
-    # to a client or a port, count, where a slow line or client lost epochs.)
-    dropped = sum(getattr(r.device, "dropped_epochs", 0) for r in receivers
-                  if getattr(r.device, "written_bytes", 0))
+    dropped = _lost_epochs([r.device for r in receivers])
     log.info(
         "stopped after %d epochs (%d with a fix, %d late, %d skipped%s)%s%s",
         sum(x.epochs for x in s),
