@@ -181,10 +181,10 @@ def keep_freed_memory() -> bool:
     zero-fills: the 10 Hz hour in chunks of 4096 took 120,000-175,000 faults and 0.25-0.45 s of
     system time; kept for reuse in one arena, 56,000-58,000 and 0.16-0.19 s, and no slower on
     two cores (five whole processes each, alternately: 1.56-1.63 s against 1.58-1.96 s); in
-    today's chunks of 2048, 43,000 faults and 0.10-0.11 s. The cost: the process keeps its
-    peak heap until it exits, so the ``virtualgps replay`` command calls this (it exits after
-    its replay), not :func:`run_replay`, which long-lived processes (the gap tool's workers)
-    call too.
+    chunks of 2048 (CHUNK_EPOCHS since 2026-11-26), 43,000 faults and 0.10-0.11 s. The cost:
+    the process keeps its peak heap until it exits, so the ``virtualgps replay`` command calls
+    this (it exits after its replay), not :func:`run_replay`, which long-lived processes (the
+    gap tool's workers) call too.
     (M_MMAP_THRESHOLD -3, M_TRIM_THRESHOLD -1, M_ARENA_MAX -8 in glibc's malloc.h; 32 MB is
     the largest mmap threshold it accepts on 64-bit.)
 
