@@ -83,7 +83,8 @@ def test_fetch_keeps_good_sets_only_and_runs_use_the_one_that_fits(server, tmp_p
     assert rep.returncode == 0 and "TLE set fetched" in rep.stderr, rep.stderr
 
 
-def test_set_for_picks_the_nearest_fresh_set(tmp_path):
+def test_cached_sets_come_newest_fetch_first(tmp_path):
+    # (Which set a run takes, fetched or not: tests/test_tlechoice.py.)
     sets = []
     for i, epoch in enumerate((1.0e9, 1.0e9 + 10 * 86400.0)):
         path = tmp_path / f"gps-ops-{i}.tle"
@@ -92,7 +93,5 @@ def test_set_for_picks_the_nearest_fresh_set(tmp_path):
             {"url": "u", "fetched_unix_s": epoch + 3600.0, "epoch_center_unix_s": epoch,
              "n_sat": 31}))
         sets.append(path)
-    assert tlecache.set_for(1.0e9 + 2 * 86400.0, 3.0, tmp_path).path == sets[0]
-    assert tlecache.set_for(1.0e9 + 9 * 86400.0, 3.0, tmp_path).path == sets[1]
-    assert tlecache.set_for(1.0e9 + 20 * 86400.0, 3.0, tmp_path) is None
-    assert [c.path for c in tlecache.cached_sets(tmp_path)] == sets[::-1]  # newest fetch first
+    (tmp_path / "gps-ops-2.json").write_text("{}")  # no set beside it, no fields: left out
+    assert [c.path for c in tlecache.cached_sets(tmp_path)] == sets[::-1]

@@ -102,8 +102,9 @@ def bench_core(
     t0 = time.perf_counter()
     cfg = config.resolve({"profile": profile, "config": cfg_file})
     scene, georef, tle = config.load_scene_for(cfg)
-    eph, _ = config.load_ephemeris(cfg, tle)
-    track = replay.track_in_scene(pose.read_pose_log(poses), georef)
+    walk = pose.read_pose_log(poses)
+    eph, _ = config.load_ephemeris(cfg, tle, float(walk.t_unix_s[0]))  # (the set replay takes)
+    track = replay.track_in_scene(walk, georef)
     grid = replay.epoch_grid(track.t_unix_s, cfg.profile.rate_hz, None)
     rx = config.make_receiver(cfg, scene, georef, eph, float(grid.t_unix_s[0]))
     fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
@@ -125,7 +126,7 @@ def bench_live(profile: str, cfg_file: str | None, n_epochs: int, repeat: int,
     daemon runs them; the sleeps not counted)."""
     cfg = config.resolve({"profile": profile, "config": cfg_file})
     scene, georef, tle = config.load_scene_for(cfg)
-    eph, _ = config.load_ephemeris(cfg, tle)
+    eph, _ = config.load_ephemeris(cfg, tle, START_UNIX_S)
     rx = config.make_receiver(cfg, scene, georef, eph, START_UNIX_S)
     fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
     walk = LoopProvider(demo_lap(scene.demo_waypoints_enu_m, scene.demo_speed_mps),

@@ -22,6 +22,7 @@ from virtualgps.exceptions import ConfigError, VirtualGPSError
 from virtualgps.geodesy import geoid_sep_m
 from virtualgps.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile, read_toml
 from virtualgps.receiver import Georef, Receiver
+from virtualgps.skytime import choose_tle_set
 
 log = logging.getLogger(__name__)
 
@@ -196,36 +197,24 @@ def load_scene_for(cfg: RunConfig):  # -> (Scene | None, Georef | None, default 
 
 
 def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float | None = None):
-    """Load ``--tle`` (a TLE file or a lookup table), else a fetched set that fits the start
-    time (:mod:`virtualgps.tlecache`), else the scene's set, else the newest bundled.
+    """Load the ephemeris :func:`virtualgps.skytime.choose_tle_set` picks for a run starting at
+    ``t_start_unix_s`` (``--tle``, else the set whose epoch lies nearest among the scene's, the
+    bundled and the fetched sets), and log the one line that says which and why.
 
     Parameters
     ----------
-    t_start_unix_s : the run's start, UTC seconds (None: fetched sets are not considered)
+    scene_tle : the scene's set, or None
+    t_start_unix_s : the run's start, UTC seconds (None: now, a live run on the wall clock)
 
     Returns
     -------
-    ephemeris : Constellation or LookupTable
+    ephemeris : Constellation, BroadcastEphemeris or LookupTable
     path : the file it came from
     """
-    from virtualgps import tlecache
-
-    fetched = None
-    if cfg.tle is None and t_start_unix_s is not None:
-        fetched = tlecache.set_for(t_start_unix_s, SKY_SHIFT_MAX_OFFSET_DAYS)
-    if cfg.tle is not None:
-        path = Path(cfg.tle)
-    elif fetched is not None:
-        path = fetched.path
-        log.info("TLE set fetched %.1f days ago from %s (%d satellites, epoch %.1f days from "
-                 "the start)", (time.time() - fetched.fetched_unix_s) / 86400.0, fetched.url,
-                 fetched.n_sat, (t_start_unix_s - fetched.epoch_center_unix_s) / 86400.0)
-    elif scene_tle is not None:
-        path = Path(scene_tle)
-    else:
-        path = eph.default_tle_path()
+    path, line = choose_tle_set(cfg.tle, scene_tle, t_start_unix_s)
     if not path.exists():
         raise ConfigError(f"TLE file {path} not found (give --tle PATH to a TLE file)")
+    log.info("%s", line)
     return eph.load_ephemeris_file(path), path
 
 

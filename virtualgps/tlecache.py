@@ -6,9 +6,9 @@
 its UTC fetch time, with a JSON sidecar (source, fetch time, TLE epoch, satellites). A download
 is parsed before it is kept, so a failed or garbled fetch never replaces a good set.
 
-``run`` and ``sky`` use the cached set whose epoch lies nearest their start time when it is
-within the sky-shift limit (a fresh set); otherwise the scene's or the bundled set with the
-sky-time shift, as before (offline, nothing changes).
+The cached sets are candidates beside the scene's and the bundled sets: ``run``, ``replay``,
+``sky`` and ``gap`` take the one whose epoch lies nearest their start time
+(:func:`virtualgps.skytime.choose_tle_set`).
 """
 
 from __future__ import annotations
@@ -119,13 +119,3 @@ def cached_sets(cache: Path | None = None) -> list[CachedSet]:
         except (OSError, ValueError, KeyError, TypeError):
             continue
     return sorted((c for c in out if c.path.is_file()), key=lambda c: -c.fetched_unix_s)
-
-
-def set_for(t_unix_s: float, max_offset_days: float, cache: Path | None = None
-            ) -> CachedSet | None:
-    """The cached set whose epoch lies nearest ``t_unix_s``, if within ``max_offset_days``."""
-    sets = cached_sets(cache)
-    if not sets:
-        return None
-    best = min(sets, key=lambda c: abs(c.epoch_center_unix_s - t_unix_s))
-    return best if abs(best.epoch_center_unix_s - t_unix_s) <= max_offset_days * 86400.0 else None

@@ -98,8 +98,8 @@ def build_fleet(
     ephemeris, tle_path = config.load_ephemeris(
         cfg, scene_tle, daemon.SimClock(t_start).now_unix_s())
     prof = cfg.profile
-    log.info("profile %s (%s), scene %s, TLE %s, seed %d, rate %g Hz, baud %d, %d receiver%s",
-             prof.name, prof.source, cfg.scene or config.DEFAULT_SCENE, tle_path, cfg.seed,
+    log.info("profile %s (%s), scene %s, seed %d, rate %g Hz, baud %d, %d receiver%s",
+             prof.name, prof.source, cfg.scene or config.DEFAULT_SCENE, cfg.seed,
              prof.rate_hz, prof.baud, len(members), "s" if len(members) > 1 else "")
 
     spec = poses_spec
