@@ -253,6 +253,25 @@ def initial_state(
     return state
 
 
+def running_state(profile: Profile, n_sat: int) -> ReceiverState:
+    """The state of a receiver already running at its first epoch (a log that starts with a
+    fix): every satellite at or above the acquisition threshold is tracked at once, instead of
+    after ``reacq_s`` of signal as at power-on.
+
+    Parameters
+    ----------
+    profile : the receiver profile; n_sat : number of satellites
+
+    Returns
+    -------
+    state : ReceiverState
+    """
+    if not profile.cn0_tracking.enabled:
+        return ReceiverState()
+    # a run of epochs above the acquisition threshold longer than any reacquisition time
+    return ReceiverState(acq_run=np.full(n_sat, 1 << 30, dtype=np.int64))
+
+
 def draw_layout(profile: Profile, n_sat: int) -> dict[str, int]:
     """Columns of the per-epoch row of uniforms each error model uses.
 
