@@ -5,6 +5,7 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -12,6 +13,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+# The profile calibration on the shared MTK logs lives in tools/ (it carries their paths and
+# what was fitted on them; nothing in the package may): its tests import it from there.
+sys.path.insert(0, str(REPO / "tools"))
 
 # Fetched TLE sets in the user's cache take precedence where they fit a run's time: the tests
 # (and the commands they start) see an empty cache of their own, never the user's.

@@ -2,8 +2,8 @@
 
 The real column is measured on ../shared/data (MT3339 static hour, M-241 car track); the
 simulated one replays the profile where and when each log was recorded and reads its NMEA back
-through the same reader and statistics (virtualgps/gap/calibration.py). Tolerance: +-20 % on the
-median over 8 seeds for every calibrated statistic (virtualgps.gap.calibration.STATISTICS).
+through the same reader and statistics (tools/mtk_calibration.py). Tolerance: +-20 % on the
+median over 8 seeds for every calibrated statistic (mtk_calibration.STATISTICS).
 """
 
 from __future__ import annotations
@@ -13,8 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from virtualgps.gap.calibration import (
+from mtk_calibration import (
     M241_SITE,
     STATISTICS,
     Row,
@@ -27,7 +26,8 @@ from virtualgps.gap.calibration import (
     site_profile,
     waypoint_sky,
 )
-from virtualgps.gap.reallogs import real_calibration_stats
+from mtk_logs import real_calibration_stats
+
 from virtualgps.profiles import load_profile
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,16 +13,16 @@ import math
 import numpy as np
 import pymap3d
 import pytest
-from scipy.signal import lfilter
-from scipy.stats import wasserstein_distance
-
-from virtualgps.gap import metrics as M
-from virtualgps.gap.reallogs import (
+from mtk_logs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     read_mtk_logger_csv,
     real_calibration_stats,
 )
+from scipy.signal import lfilter
+from scipy.stats import wasserstein_distance
+
+from virtualgps.gap import metrics as M
 from virtualgps.nmea import format_sentence, nmea_epochs_from_lines
 from virtualgps.records import Fixes
 

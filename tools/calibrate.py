@@ -6,11 +6,11 @@ Usage::
                               [--site tools/mt3339-site.toml] [--data ../shared/data]
                               [--readme README.md] [--plot cal.png]
 
-The real column comes from :func:`virtualgps.gap.reallogs.real_calibration_stats` (also
+The real column comes from :func:`mtk_logs.real_calibration_stats` (also
 printed by tools/real_stats.py), the simulated one from
-:func:`virtualgps.gap.calibration.sim_calibration_stats`: the profile replayed where and when
+:func:`mtk_calibration.sim_calibration_stats`: the profile replayed where and when
 each log was recorded, its NMEA read back and summarised exactly like the real log's (see
-virtualgps/gap/calibration.py), the MT3339 hour with its site's obstruction (``--site``, learned
+tools/mtk_calibration.py), the MT3339 hour with its site's obstruction (``--site``, learned
 by ``virtualgps gap``) on top of the profile. The simulated value is the median
 over the seeds, with the seeds' range beside it. ``--readme`` rewrites the table between the
 ``<!-- calibration:start -->`` and ``<!-- calibration:end -->`` lines of that file (and the
@@ -32,10 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-
-from virtualgps.config import BUNDLED_SCENES_DIR
-from virtualgps.ephemeris import load_tle
-from virtualgps.gap.calibration import (
+from mtk_calibration import (
     CALIBRATION_TLE,
     DEFAULT_SEEDS,
     M241_SITE,
@@ -52,19 +49,22 @@ from virtualgps.gap.calibration import (
     site_profile,
     waypoint_sky,
 )
+from mtk_logs import (
+    M241_MOVING_MIN_SPEED_MPS,
+    M241_TRACK_CSV,
+    MT3339_STATIC_LOG,
+    read_mtk_logger_csv,
+    real_calibration_stats,
+)
+
+from virtualgps.config import BUNDLED_SCENES_DIR
+from virtualgps.ephemeris import load_tle
 from virtualgps.gap.metrics import (
     autocorrelation,
     errors_enu_m,
     horizontal_error_m,
     median_position,
     to_regular_grid,
-)
-from virtualgps.gap.reallogs import (
-    M241_MOVING_MIN_SPEED_MPS,
-    M241_TRACK_CSV,
-    MT3339_STATIC_LOG,
-    read_mtk_logger_csv,
-    real_calibration_stats,
 )
 from virtualgps.nmea import read_nmea_epochs
 from virtualgps.profiles import load_profile

@@ -1,7 +1,7 @@
 """Print the "real" column of the holux-m1000 calibration table from the real MTK logs.
 
 Usage: ``python tools/real_stats.py [SHARED_DATA_DIR] [--json]`` (default ``../shared/data``
-beside the clone). Statistics come from :func:`virtualgps.gap.reallogs.real_calibration_stats`
+beside the clone). Statistics come from :func:`mtk_logs.real_calibration_stats`
 (the same function the calibration script and ``tests/test_metrics.py`` use): the MT3339 static
 hour (mt3339-static/hour_test_1.txt) for error statistics, C/N0 and start-up; the Holux M-241
 car track (mtk-logger/mtk_logger_m241.csv) for satellites and HDOP while moving. The last
@@ -30,13 +30,14 @@ import json
 import math
 from pathlib import Path
 
-from virtualgps.gap.metrics import summary
-from virtualgps.gap.reallogs import (
+from mtk_logs import (
     MT3339_SOURCES_AUTOCORR_RANGE_S,
     MT3339_SOURCES_FACTS,
     MT3339_STATIC_LOG,
     real_calibration_stats,
 )
+
+from virtualgps.gap.metrics import summary
 from virtualgps.nmea import read_nmea_epochs
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

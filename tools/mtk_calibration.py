@@ -37,17 +37,17 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-
-from virtualgps import geodesy, nmea, pose
-from virtualgps.ephemeris import Constellation, load_tle
-from virtualgps.gap.ingest import take_epochs
-from virtualgps.gap.metrics import ELEVATION_BINS_DEG, median_position, summary
-from virtualgps.gap.reallogs import (
+from mtk_logs import (
     M241_MOVING_MIN_SPEED_MPS,
     M241_TRACK_CSV,
     MT3339_STATIC_LOG,
     read_mtk_logger_csv,
 )
+
+from virtualgps import geodesy, nmea, pose
+from virtualgps.ephemeris import Constellation, load_tle
+from virtualgps.gap.ingest import take_epochs
+from virtualgps.gap.metrics import ELEVATION_BINS_DEG, median_position, summary
 from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
 from virtualgps.profiles import Profile, load_profile
 from virtualgps.receiver import Georef, Receiver
@@ -313,7 +313,7 @@ def compare(
 
     Parameters
     ----------
-    real : from :func:`virtualgps.gap.reallogs.real_calibration_stats`
+    real : from :func:`mtk_logs.real_calibration_stats`
     sim : from :func:`sim_calibration_stats`
 
     Returns
