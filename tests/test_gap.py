@@ -15,7 +15,7 @@ import pytest
 
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.gap import where
+from virtualgps.gap import runs, select, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
 from virtualgps.pose import PoseTrack
 from virtualgps.profiles import build_profile, load_profile, load_profile_dict
@@ -74,15 +74,6 @@ def test_position_quantum_is_the_logs_printed_resolution():
     assert where.position_quantum_min(lat, lat) == pytest.approx(1e-4)
 
 
-def test_distance_is_zero_when_real_equals_the_ensemble_and_grows_with_the_ratio():
-    st = where.SegmentStats({"cep50_m": 4.5}, {"cep50_m": np.full(10, 4.5)}, {})
-    assert where.distance("cep50_m", st) == 0.0
-    st = where.SegmentStats({"cep50_m": 9.5}, {"cep50_m": np.full(10, 4.5)}, {})
-    assert where.distance("cep50_m", st) == pytest.approx(np.log(10.0 / 5.0))
-    st = where.SegmentStats({"ttff_s": 31.0}, {"ttff_s": np.full(5, np.nan)}, {})
-    assert where.distance("ttff_s", st) == where.D_CAP  # shown by the real receiver only
-
-
 # --- candidates and profiles ---------------------------------------------------------------------
 
 
@@ -98,7 +89,7 @@ def test_candidates_are_the_effects_a_profile_lacks_and_build_valid_profiles():
     hc = {c.name for c in fx.candidates(holux, has_mesh=False)[0]}
     assert "correlated_error" not in hc and "nlos" not in fx.candidates(holux, True)[0]
     for c in cands:
-        for pt in (c.grid[0], c.grid[-1], c.grid[c.default]):
+        for pt in (c.grid[0], c.grid[-1], c.grid[c.default_index]):
             build_profile(fx.apply(usarsim, pt))  # every grid point is a valid profile
 
 
@@ -114,10 +105,10 @@ def test_calibrated_profile_toml_round_trips(tmp_path):
 
 
 def test_fit_keeps_the_default_without_evidence():
-    gaps = np.array([[0.50, 0.40], [0.501, 0.41], [0.499, 0.39]])  # (points, units)
-    assert dg._fit_point(gaps, np.array([True, False]), default=1) == 1
-    gaps[0, 0] = 0.3  # clear evidence for point 0
-    assert dg._fit_point(gaps, np.array([True, False]), default=1) == 0
+    j = np.array([0.50, 0.501, 0.499])
+    assert select.fit_index(j, default=1) == 1
+    j[0] = 0.3  # clear evidence for point 0
+    assert select.fit_index(j, default=1) == 0
 
 
 def test_learned_sky_mask_blocks_bins_the_real_receiver_loses():
@@ -249,13 +240,30 @@ def test_selfcheck_ranks_injected_effects_first(tmp_path):
     res = selfcheck.run(dg.Options(seeds=10, jobs=2, effects=("latency", "sbas")), trials=1,
                         out_dir=tmp_path)
     assert [t["ranked_first"] for t in res["trials"]] == ["latency", "sbas"]
-    assert [t["added_first"] for t in res["trials"]] == ["latency", "sbas"]
-    assert all(t["ranked"][0] == t["ranked_first"] for t in res["trials"])
+    assert all(t["success"] and t["ranked"][0] == t["ranked_first"] for t in res["trials"])
     lat = res["trials"][0]
+    lo, hi = lat["recovered_interval"]["latency_s"]
+    assert lo <= lat["recovered"]["latency_s"] <= hi and lat["covered"] == {"latency_s": True}
     assert lat["recovered"]["latency_s"] == pytest.approx(lat["params"]["latency_s"], abs=0.3)
     doc = json.loads((tmp_path / "selfcheck.json").read_text())
-    assert set(doc) >= {"trials", "confusion"} and doc["confusion"]["latency"] == {"latency": 1}
+    assert set(doc) >= {"trials", "confusion", "null_calibration"}
+    assert doc["confusion"]["latency"] == {"latency": 1}
     assert (tmp_path / "report.html").stat().st_size > 10_000
+
+
+def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
+    """A log made by the profile under test itself: "nothing" first, and no located gap beyond
+    the false-discovery rate; two effects injected at once: both are the first added."""
+    from virtualgps.gap import selfcheck
+
+    res = selfcheck.run(dg.Options(seeds=12, jobs=2), trials=1, out_dir=tmp_path,
+                        labels=["nothing@holux-m1000", "cold_start+latency"])
+    null, pair = res["trials"]
+    assert null["ranked_first"] == "nothing" and null["accepted"] == [], null
+    assert null["where_outside"] <= 0.05 * null["where_rows"]
+    assert res["null_calibration"]["reports"] == 1
+    assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair
+    assert res["confusion"]["nothing@holux-m1000"] == {"nothing": 1}
 
 
 def test_selfcheck_tells_the_papers_noise_from_dop_driven_errors(tmp_path):
@@ -339,11 +347,17 @@ def test_gap_cli_errors_are_one_line(tmp_path):
         assert len(lines) == 1 and lines[0].startswith("virtualgps: error:"), r.stderr
 
 
-def test_a_high_satellite_never_tracked_is_silent_not_blocked():
-    # PRN columns: 0 high and tracked; 1 high (60 deg) never tracked: not transmitting;
-    # 2 low (20 deg) never tracked: blocked, still compared.
-    el = np.tile([70.0, 60.0, 20.0], (50, 1))
-    tracked = np.zeros((50, 3), bool)
-    tracked[:, 0] = True
-    silent = dg._silent_prns(tracked, el, np.ones((50, 3), bool))
-    assert silent.tolist() == [False, True, False]
+def test_a_satellite_never_tracked_over_a_long_pass_is_silent_not_blocked():
+    """PRN columns: 0 high and tracked; 1 rises from 60 to 80 deg across the sky and is never
+    tracked while the lower 2 and 3 are: not transmitting; 4, low and never tracked, has no
+    tracked satellite below it: it may be blocked, and stays compared; 5 never tracked in a
+    short, fixed direction: cannot be told from an obstruction."""
+    n = 50
+    el = np.tile([70.0, 60.0, 20.0, 30.0, 8.0, 85.0], (n, 1))
+    el[:, 1] = np.linspace(60.0, 80.0, n)
+    az = np.tile([10.0, 0.0, 200.0, 300.0, 90.0, 45.0], (n, 1))
+    az[:, 1] = np.linspace(0.0, 100.0, n)
+    tracked = np.zeros((n, 6), bool)
+    tracked[:, [0, 2, 3]] = True
+    silent = runs._silent_prns(tracked, el, az, np.ones((n, 6), bool))
+    assert silent.tolist() == [False, True, False, False, False, False]

@@ -48,8 +48,8 @@ def _common(p: argparse.ArgumentParser, start_time_help: str | None) -> None:
     p.add_argument(
         "--tle",
         help="TLE file, RINEX 2/3 GPS navigation file (broadcast orbits) or satellite lookup "
-        "table (default: a fetched set that fits the time, else the scene's set, else the "
-        "newest bundled set)",
+        "table (default: of the scene's, the bundled and the fetched TLE sets, the one whose "
+        "epoch lies nearest the start time)",
     )
     p.add_argument("--rate", type=float, help="output rate in Hz (default: the profile's, 1 Hz)")
     if start_time_help is not None:  # (sky has --time instead: one moment, taken literally)
@@ -135,8 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "(repeat, in the order of --real)")
     gap.add_argument("--scene", help="scene folder or scene.toml, or 'none' (default: the "
                      "bundled magdeburg-campus; runs far from it are simulated in open sky)")
-    gap.add_argument("--tle", help="TLE file or RINEX GPS navigation file (default: the "
-                     "scene's set, else the newest bundled)")
+    gap.add_argument("--tle", help="TLE file or RINEX GPS navigation file (default: of the "
+                     "scene's, the bundled and the fetched TLE sets, the one whose epoch lies "
+                     "nearest the log's time)")
     gap.add_argument("--profile", default="holux-m1000",
                      help="the profile under test (default holux-m1000)")
     gap.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -150,11 +151,17 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--dask", metavar="ADDRESS",
                      help="send the ensemble jobs to this Dask scheduler (tcp://HOST:8786)")
     gap.add_argument("--blocks", type=int, default=4,
-                     help="held-out time blocks for a single run (default 4)")
+                     help="held-out time blocks per run at most, with one or two runs "
+                     "(default 4; blocks are guarded by the error's correlation time)")
     gap.add_argument("--selfcheck", action="store_true",
-                     help="diagnose pseudo-real logs with known injected effects instead")
+                     help="diagnose pseudo-real logs with known injected effects instead "
+                     "(--effects then names trials: effects, pairs a+b, nothing@PROFILE)")
     gap.add_argument("--trials", type=int, default=3,
                      help="self-check trials per effect (default 3)")
+    gap.add_argument("--data", metavar="DIR",
+                     help="self-check: the shared real logs (../shared/data) for the trials "
+                     "that inject effects into a real log (default: ../shared/data where it "
+                     "exists)")
     gap.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
 
     ephem = sub.add_parser("ephemeris", help="today's sky: fetch current GPS TLE sets, list them",
@@ -328,7 +335,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     scene, georef, scene_tle = config.load_scene_for(cfg)
     track = pose.read_pose_log(Path(args.poses), args.topic)
     t_first = cfg.start_time_unix_s if cfg.start_time_unix_s is not None else track.t_unix_s[0]
-    ephemeris, tle_path = config.load_ephemeris(cfg, scene_tle, float(t_first))
+    ephemeris, _ = config.load_ephemeris(cfg, scene_tle, float(t_first))
     if georef is None:
         if track.frame != "geodetic":
             config.require_georef(None, "a geodetic pose log")
@@ -340,11 +347,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     rx = config.make_receiver(cfg, scene, georef, ephemeris, float(grid.t_unix_s[0]))
     fmt = nmea.NmeaFormat.from_dict(cfg.profile.nmea)
     log.info(
-        "replay %s: %d epochs, profile %s, TLE %s, seed %d",
+        "replay %s: %d epochs, profile %s, seed %d",
         args.poses,
         len(grid.t_unix_s),
         cfg.profile.name,
-        tle_path,
         cfg.seed,
     )
     bar = _progress_bar(sys.stderr)
@@ -481,7 +487,8 @@ def _gap_options(args: argparse.Namespace):
     effects = None
     if args.effects:
         effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
-        bad = [e for e in effects if e not in EFFECT_NAMES]
+        bad = [e for e in effects if not (e in EFFECT_NAMES or (args.selfcheck and (
+            "+" in e or e.startswith("nothing"))))]
         if bad:
             raise VirtualGPSError(f"--effects: unknown effect {', '.join(bad)}; known: "
                                   f"{', '.join(EFFECT_NAMES)}")
@@ -517,7 +524,17 @@ def cmd_gap(args: argparse.Namespace) -> int:
     if args.selfcheck:
         from virtualgps.gap import selfcheck
 
-        result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress)
+        data = Path(args.data) if args.data else Path("..") / "shared" / "data"
+        if args.data and not data.is_dir():
+            raise VirtualGPSError(f"--data {data}: no such folder")
+        try:
+            labels = selfcheck.default_labels(opts.effects)
+            for label in labels:
+                selfcheck.spec_of(label)
+        except (KeyError, ValueError) as exc:
+            raise VirtualGPSError(f"--effects: {exc}") from None
+        result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress,
+                               labels=labels, data=data if data.is_dir() else None)
         if progress:
             sys.stderr.write("\r\x1b[K")
         for line in selfcheck.summary_lines(result):

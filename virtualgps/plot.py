@@ -156,6 +156,9 @@ def fig_error_time(run: Any) -> bytes:
     else:
         _empty(ax2, "no pair of fixes")
     ax2.set_ylabel("Eq. 4 distance (deg)")
+    # the same distance in metres (a degree of latitude: 111.32 km) for robot builders
+    ax2.secondary_yaxis("right", functions=(lambda d: d * 111_320.0,
+                                            lambda m: m / 111_320.0)).set_ylabel("≈ metres")
     ax2.set_xlabel("time since the log's start (s)")
     return _png(plt, fig)
 

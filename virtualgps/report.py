@@ -67,6 +67,7 @@ th { background: #eee; } tr.outside td { background: #fff0f0; }
 figure { display: inline-block; margin: 0.5em; vertical-align: top; }
 figcaption { font-size: 0.85em; color: #555; max-width: 40em; }
 img { max-width: 100%; } .num { text-align: right; font-variant-numeric: tabular-nums; }
+p.note { font-size: 0.9em; color: #444; max-width: 60em; }
 """
 
 
@@ -157,7 +158,7 @@ def gap_figures(data: GapFigureData) -> list[str]:
     real = np.concatenate([r.real_err_h_m for r in data.runs])
     sim = np.concatenate([r.sim_err_h_m for r in data.runs], axis=1)
     out.append(_figure("cdf", plot.fig_error_cdf(real, sim),
-                       "horizontal error CDF: real against the ensemble's 2.5-97.5 % band"))
+                       "horizontal error CDF: real against the seeds' 2.5-97.5 % range"))
     out.append(_figure("acf", plot.fig_autocorrelation(
         data.acf_lags_s, data.real_acf, data.sim_acf, data.final_acf),
         "error autocorrelation: real against the ensemble (longest run)"))
@@ -167,37 +168,142 @@ def gap_figures(data: GapFigureData) -> list[str]:
     return out
 
 
+SCORE_EXPLAINED = (
+    "How to read the gap score: for each metric, the real value's distance from what the "
+    "profile's own seeds produce, in units of their spread (z: 1 is one predictive standard "
+    "deviation; a difference within the metric's practical floor counts 0), less 1 and never "
+    "below 0, at most 5; the score is the mean over the metrics a unit of data supports. A log "
+    "made by the profile itself scores about 0.1; 1 means the metrics lie on average two "
+    "spreads off; 3 or more, far outside anything the profile makes.")
+
+
+def _headline_rows(report: dict) -> list[dict]:
+    rows = []
+    for h in report.get("headline", []):
+        unit = f" {h['unit']}" if h.get("unit") else ""
+        rows.append({"": h["label"], "real": f"{_fmt(h['real'])}{unit}",
+                     "simulated (median; 95 % band)":
+                         f"{_fmt(h['simulated'])}{unit} ({_fmt(h['sim_lo'])}"
+                         f"–{_fmt(h['sim_hi'])})",
+                     "calibrated": "" if h.get("calibrated") is None
+                     else f"{_fmt(h['calibrated'])}{unit}",
+                     "gap": "yes" if h.get("outside") else ""})
+    return rows
+
+
+def _cause_rows(report: dict) -> list[dict]:
+    rows = []
+    for c in report.get("causes", []):
+        if c["name"] == "truth_offset":
+            what = (f"{c['run']}: truth {c['size_m']:.1f} m off (E {c['east_m']:+.1f}, N "
+                    f"{c['north_m']:+.1f} m; p = {c['p_value']:.2g} over {c['blocks']} blocks)"
+                    + (": the truth was moved by it before judging" if c["applied"]
+                       else ": not significant, left as it is"))
+        elif c["name"] == "time_offset":
+            lo, hi = c["interval_s"]
+            what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"
+                    + (f" (95 %: {lo:.2f} to {hi:.2f} s)" if math.isfinite(lo) else "")
+                    + f". {c['what']}")
+        else:
+            what = c.get("what", "") + (
+                f"; held-out gap {_fmt(c.get('gap_flat_earth'))} with it, "
+                f"{_fmt(c.get('gap_exact'))} with the exact conversion"
+                + (" (the effects below were chosen with the exact one)" if c.get("applied")
+                   else "") if "gap_exact" in c else "")
+        rows.append({"cause": c["name"], "what": what})
+    return rows
+
+
+def _effect_rows(report: dict) -> list[dict]:
+    rows = []
+    for e in report.get("effects", []):
+        fit = e.get("fit") or {}
+        ident = fit.get("identifiable", {})
+        intervals = fit.get("intervals", {})
+        notes = []
+        for k, ok in ident.items():
+            notes.append(f"{k} {intervals.get(k)}" if ok else f"{k} not identifiable")
+        notes += [f"{k} {v}" for k, v in fit.get("bounds", {}).items()]
+        if e.get("tied_with"):
+            notes.append("tied with " + ", ".join(e["tied_with"]))
+        if e.get("alias"):
+            notes.append(e["alias"])
+        if not e.get("accepted") and e.get("accepted_test"):
+            notes.append("not added: " + e["accepted_test"])
+        rows.append({"effect": e["name"], "added": e.get("accepted"), "params": e.get("params"),
+                     "held-out gap before": e.get("gap_before"),
+                     "after": e.get("gap_after"),
+                     "chosen in outer groups": e.get("outer_share"),
+                     "notes": "; ".join(notes)})
+    return rows
+
+
 def write_html(report: dict, data: GapFigureData, path: str | Path) -> None:
     """Write the diagnosis as one self-contained HTML page."""
     runs = report.get("runs", [])
     names = ", ".join(r["name"] if isinstance(r, dict) else str(r) for r in runs)
     where = report.get("where", [])
-    outside = sorted((w for w in where if w.get("outside")),
-                     key=lambda w: -(w.get("distance") or 0.0))
-    effects = report.get("effects", [])
+    design = report.get("design", {})
+    outer = report.get("outer") or {}
+    band = report.get("band", {})
+    located = [{"metric": g["metric"], "rows": g["rows"],
+                "worst segment": g["worst"]["segment"], "real": g["worst"]["real"],
+                "band": f"{_fmt(g['worst']['sim_lo'])}–{_fmt(g['worst']['sim_hi'])}",
+                "z": g["worst"]["z"], "segments": ", ".join(g["segments"][:12])
+                + (" …" if len(g["segments"]) > 12 else "")}
+               for g in report.get("located", [])]
+    if outer.get("groups"):
+        lo, hi = outer.get("interval", [math.nan, math.nan])
+        held = (f"On data that neither the choice of effects nor their fit saw ("
+                f"{outer['groups']} outer groups: {html.escape(design.get('scheme', ''))}), "
+                f"the gap score goes from <b>{_fmt(report.get('gap_baseline'))}</b> with the "
+                f"profile under test to <b>{_fmt(report.get('gap_final'))}</b> with the "
+                f"effects each group's choice added (reduction {_fmt(outer.get('reduction'))}"
+                + (f", 95 % interval {_fmt(lo)} to {_fmt(hi)}" if lo == lo else "") + ").")
+    else:
+        held = (f"Gap score of the profile under test: <b>{_fmt(report.get('gap_baseline'))}"
+                "</b>. No held-out test of effects was possible.")
+    warnings = "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>"
+                       for w in design.get("warnings", []))
+    warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "
+                        f"{html.escape(r['sky_warning'])}</p>"
+                        for r in runs if isinstance(r, dict) and r.get("sky_warning"))
     body = [
         f"<h1>virtualgps gap: {html.escape(str(report.get('profile', '')))}</h1>",
-        f"<p>Runs: {html.escape(names)}. Held out: "
-        f"{html.escape('; '.join(report.get('heldout', [])))}.</p>",
-        f"<p>Gap score (held out, lower is better): baseline "
-        f"<b>{_fmt(report.get('gap_baseline'))}</b>, with the added effects "
-        f"<b>{_fmt(report.get('gap_final'))}</b>. Calibrated profile: "
+        f"<p>Runs: {html.escape(names)}.</p>", warnings,
+        "<h2>At a glance (all epochs)</h2>",
+        _table(_headline_rows(report), ["", "real", "simulated (median; 95 % band)",
+                                        "calibrated", "gap"]),
+        f"<p>{held} Calibrated profile: "
         f"{html.escape(str(report.get('calibrated_profile', '')))}.</p>",
-        "<h2>Figures</h2>", *gap_figures(data),
+        f"<p class=\"note\">{html.escape(SCORE_EXPLAINED)}</p>",
+        "<h2>Causes that are not receiver effects</h2>",
+        _table(_cause_rows(report), ["cause", "what"]),
         "<h2>Effects, ranked by held-out gap</h2>",
-        _table([{**e, "params": e.get("params", {})} for e in effects],
-               ["name", "accepted", "params", "gap_before", "gap_after", "contribution",
-                "heldout_scheme"]),
-        "<h2>Located gaps (real outside the ensemble's 2.5-97.5 % band)</h2>",
-        _table(outside, ["metric", "segment", "real", "sim_lo", "sim_hi", "distance"]),
+        _table(_effect_rows(report), ["effect", "added", "params", "held-out gap before",
+                                      "after", "chosen in outer groups", "notes"]),
+        "<h2>Located gaps, by metric</h2>",
+        f"<p>A row is a located gap when the real value leaves the band the profile's "
+        f"{band.get('seeds', '')} seeds give it: a prediction interval for one more draw "
+        f"(finite ensemble), widened by the metric's practical floor, at the level the "
+        f"false-discovery rule over all {len(where)} rows sets "
+        f"({_fmt(band.get('alpha_row'))} per row, {_fmt(band.get('fdr_q'))} over the report)."
+        " Under the null (a log made by the profile under test) 5 % of reports show any.</p>",
+        _table(located, ["metric", "rows", "worst segment", "real", "band", "z", "segments"]),
         "<details><summary>every statistic</summary>",
-        _table(where, ["metric", "segment", "real", "sim_lo", "sim_hi", "outside"],
+        _table(where, ["metric", "segment", "same_as", "real", "sim_median", "sim_lo",
+                       "sim_hi", "z", "q_value", "outside"],
                lambda r: "outside" if r.get("outside") else ""),
         "</details>",
+        "<h2>Figures</h2>", *gap_figures(data),
         "<h2>Unexplained (outside the band with the calibrated profile)</h2>",
-        _table(report.get("unexplained", []), ["metric", "segment", "real", "sim_lo", "sim_hi"]),
+        _table(report.get("unexplained", []), ["metric", "segment", "real", "sim_lo", "sim_hi",
+                                               "beyond", "z"]),
         "<h2>Not assessed</h2>",
         _table(report.get("not_assessed", []), ["metric", "reason"]),
+        "<h2>Outer test</h2>",
+        _table(outer.get("folds", []), ["heldout", "effects", "params", "gap_before",
+                                        "gap_after"]),
         "<h2>Runs as read</h2>",
         _table([r for r in runs if isinstance(r, dict)],
                ["name", "real", "truth", "epochs", "skipped", "time_offset_s", "simulated_in",
@@ -207,27 +313,43 @@ def write_html(report: dict, data: GapFigureData, path: str | Path) -> None:
 
 
 def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
-    """Write the self-check (confusion matrix, trials) as one self-contained HTML page."""
+    """Write the self-check (confusion matrix, null calibration, trials) as one self-contained
+    HTML page."""
     from virtualgps import plot
 
     conf = selfcheck.get("confusion", {})
     names = list(conf)
-    firsts = sorted({f for row in conf.values() for f in row} | set(names))
+    firsts = sorted({f for row in conf.values() for f in row} | {
+        n for n in names if "+" not in n and not n.startswith(("nothing", "real:"))})
     counts = [[conf[n].get(f, 0) for f in firsts] for n in names]
     rows = [{"injected": n, **{f: conf[n].get(f, 0) for f in firsts}} for n in names]
+    cal = selfcheck.get("null_calibration", {})
+    summary = [{"label": k, **v} for k, v in selfcheck.get("summary", {}).items()]
     body = [
         "<h1>virtualgps gap --selfcheck</h1>",
-        f"<p>{len(selfcheck.get('trials', []))} trials: injected effect ranked first in "
-        f"{_fmt(100 * (selfcheck.get('share_ranked_first') or 0.0))} %, another effect in "
-        f"{_fmt(100 * (selfcheck.get('share_other_first') or 0.0))} %; added first in "
-        f"{_fmt(100 * (selfcheck.get('share_added_first') or 0.0))} %, another effect in "
-        f"{_fmt(100 * (selfcheck.get('share_other_added_first') or 0.0))} %.</p>",
+        f"<p>{len(selfcheck.get('trials', []))} trials, right in "
+        f"{_fmt(100 * (selfcheck.get('share_success') or 0.0))} %: a single injected effect "
+        f"ranked first in {_fmt(100 * (selfcheck.get('share_ranked_first') or 0.0))} % of its "
+        f"trials, another effect in {_fmt(100 * (selfcheck.get('share_other_first') or 0.0))} "
+        "%; a null trial (a log made by the profile under test) is right when nothing is "
+        "added; a pair when both effects are the first added.</p>",
+        f"<p>Under the null: {cal.get('reports_with_any_row_outside', 0)} of "
+        f"{cal.get('reports', 0)} reports show any located gap "
+        f"({cal.get('rows_outside', 0)} of {cal.get('rows', 0)} rows; nominal: "
+        f"{html.escape(str(cal.get('nominal', '')))}); {cal.get('effects_added', 0)} added an "
+        "effect.</p>",
         _figure("confusion", plot.fig_confusion(names, firsts, counts),
-                "confusion matrix: injected effect x effect ranked first") if names else "",
+                "confusion matrix: injected x ranked first ('nothing': no effect added)")
+        if names else "",
+        "<h2>Per trial kind</h2>",
+        _table(summary, ["label", "kind", "trials", "success", "share", "parameters_covered"]),
         "<h2>Confusion matrix</h2>", _table(rows, ["injected", *firsts]),
         "<h2>Trials</h2>",
         _table(selfcheck.get("trials", []), ["injected", "scenario", "params", "ranked_first",
-                                             "added_first", "recovered", "gap_before",
-                                             "gap_after"]),
+                                             "accepted", "recovered", "recovered_interval",
+                                             "covered", "gap_before", "gap_after",
+                                             "where_outside"]),
     ]
+    if selfcheck.get("real_bases_note"):
+        body.append(f"<p>{html.escape(selfcheck['real_bases_note'])}</p>")
     Path(path).write_text(_page("virtualgps gap self-check", body), encoding="utf-8")

@@ -2,19 +2,22 @@
 parameter values each is tried with, and how a candidate becomes a profile.
 
 "Adding an effect" is switching on its profile table (the same ``receiver.simulate``), so a
-candidate is a small table of profile keys (``{"correlated_error": {"enabled": True, "tau_s":
-120.0, ...}}``) merged into the profile under test. Each candidate's grid spans the values its
-parameters take in real receivers (sources in :mod:`virtualgps.profiles`); the fit picks the
-grid point with the smallest training gap (common random numbers: every grid point runs the
-same seeds, so the objective is smooth in the parameters). ``default`` is the grid point kept
-when the training data say nothing about the parameters (a flat objective, e.g. a start-up
-time when no training unit holds a power-on).
+candidate's grid point is a small table of profile keys (``{"correlated_error": {"enabled":
+True, "tau_s": 120.0, ...}}``) merged into the profile under test. A candidate's parameters are
+axes; its grid is their product, spanning the values they take in real receivers (sources in
+:mod:`virtualgps.profiles`), evenly on the scale each is judged on (geometric for times and
+scales). Its default, the point kept when the data cannot tell the points apart, is the
+profile's own value where the profile's table names the key, else the grid's centre: never a
+value fitted on anyone's log. An axis whose best point lies at the grid's edge can be extended
+by one step (:meth:`Candidate.extended`).
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 from virtualgps.profiles import build_profile, merge
@@ -28,20 +31,108 @@ EFFECT_NAMES = (
 
 
 @dataclass(frozen=True)
-class Candidate:
-    """One effect to try: its name, the profile tables of each grid point, the default point.
+class Axis:
+    """One fitted parameter: its name (the report's key), its grid values, and how far it may
+    be extended (``lo``, ``hi``; None: not extended, e.g. on/off or a choice)."""
 
-    grid : tuple of override tables ({table: {key: value}}), one per parameter set
-    params : the fitted parameters' names (profile keys), for the report
-    default : index into ``grid`` used when the training data cannot tell the points apart
+    name: str
+    values: tuple
+    lo: float | None = None
+    hi: float | None = None
+
+    def step_beyond(self, upper: bool) -> float | None:
+        """The next value past the grid's upper (or lower) end, on the grid's own spacing
+        (geometric when its values are, else linear), within ``lo``/``hi``; None if none."""
+        if self.lo is None or len(self.values) < 2:
+            return None
+        v = sorted(float(x) for x in self.values)
+        a, b = (v[-2], v[-1]) if upper else (v[1], v[0])
+        geometric = all(x > 0 for x in v) and len(v) >= 3 and (
+            abs(math.log(v[-1] / v[-2]) - math.log(v[1] / v[0])) < 0.2)
+        nxt = b * (b / a) if geometric and a > 0 else b + (b - a)
+        nxt = round(nxt, 3)
+        if not (self.lo < nxt < (self.hi if self.hi is not None else math.inf)):
+            return None
+        return nxt
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect to try: its axes, how a point becomes profile tables, its default point.
+
+    axes : the fitted parameters (none: on/off)
+    make : point {axis: value} -> override tables ({table: {key: value}})
+    params : the report's parameter names (profile keys) read back from a point's tables
+    default : the default point {axis: value}
+    learned : sky_mask: its grid is learned per fold, at these levels
+    learned_atten : sky_mask: also C/N0 deficits as attenuation (cn0_tracking on)
     """
 
     name: str
-    grid: tuple[dict[str, dict[str, Any]], ...]
+    axes: tuple[Axis, ...]
+    make: Callable[[dict[str, Any]], dict[str, dict[str, Any]]] = field(repr=False)
     params: tuple[str, ...]
-    default: int = 0
-    learned: tuple[float, ...] = ()  # sky_mask: its grid is learned per fold, at these levels
-    learned_atten: bool = False  # sky_mask: also C/N0 deficits as attenuation (cn0_tracking on)
+    default: dict[str, Any] = field(default_factory=dict)
+    learned: tuple[float, ...] = ()
+    learned_atten: bool = False
+
+    @property
+    def points(self) -> list[dict[str, Any]]:
+        """Every grid point, the first axis slowest."""
+        names = [a.name for a in self.axes]
+        return [dict(zip(names, vals, strict=True))
+                for vals in itertools.product(*(a.values for a in self.axes))]
+
+    @property
+    def grid(self) -> list[dict[str, dict[str, Any]]]:
+        """The override tables of every grid point."""
+        return [self.make(p) for p in self.points]
+
+    @property
+    def default_index(self) -> int:
+        return self.points.index(self.default) if self.default in self.points else 0
+
+    @property
+    def complexity(self) -> int:
+        """Parameters it adds (a tie between candidates goes to the smaller)."""
+        return max(1, len(self.axes))
+
+    def extended(self, axis: str, upper: bool) -> Candidate | None:
+        """The candidate with one more value past an end of ``axis`` (None: cannot)."""
+        out = []
+        new = None
+        for a in self.axes:
+            if a.name == axis:
+                new = a.step_beyond(upper)
+                if new is None:
+                    return None
+                vals = tuple(sorted(set(a.values) | {new}))
+                a = Axis(a.name, vals, a.lo, a.hi)
+            out.append(a)
+        return Candidate(self.name, tuple(out), self.make, self.params, self.default,
+                         self.learned, self.learned_atten) if new is not None else None
+
+    def near(self, chosen: list[dict[str, Any]]) -> Candidate:
+        """The candidate with each axis cut to the values within one grid step of those
+        ``chosen`` (points of an earlier round: a later round refits around them); the default
+        moves to the nearest kept value."""
+        if not chosen or not self.axes:
+            return self
+        out = []
+        for a in self.axes:
+            idx = {a.values.index(p[a.name]) for p in chosen if p.get(a.name) in a.values}
+            keep = sorted({k + d for k in idx for d in (-1, 0, 1)
+                           if 0 <= k + d < len(a.values)}) or range(len(a.values))
+            out.append(Axis(a.name, tuple(a.values[k] for k in keep), a.lo, a.hi))
+        default = {}
+        for a in out:
+            v = self.default.get(a.name)
+            default[a.name] = v if v in a.values else min(
+                a.values, key=lambda x, v=v: 0 if x == v else (
+                    abs(x - v) if isinstance(x, int | float) and isinstance(v, int | float)
+                    else 1))
+        return Candidate(self.name, tuple(out), self.make, self.params, default, self.learned,
+                         self.learned_atten)
 
     def params_of(self, overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:
         """The fitted parameters of an override table as profile keys (flat, for the report)."""
@@ -51,16 +142,37 @@ class Candidate:
         return out
 
 
-def _points(table: str, fixed: dict[str, Any], **axes: tuple) -> tuple[dict, ...]:
-    keys = list(axes)
-    return tuple(
-        {table: {**fixed, **dict(zip(keys, vals, strict=True))}}
-        for vals in itertools.product(*(axes[k] for k in keys))
-    )
-
-
 def _enabled(profile: dict[str, Any], table: str) -> bool:
     return bool(profile.get(table, {}).get("enabled", False))
+
+
+def _default(axes: tuple[Axis, ...], own: dict[str, Any]) -> dict[str, Any]:
+    """Per axis the grid value nearest the profile's own value where it names one, else the
+    grid's centre (the lower middle of an even count)."""
+    out = {}
+    for a in axes:
+        v = own.get(a.name)
+        if v is not None and all(isinstance(x, int | float) and not isinstance(x, bool)
+                                 for x in (*a.values, v)):
+            out[a.name] = min(a.values, key=lambda x: abs(math.log(x + 1e-9) - math.log(
+                v + 1e-9)) if x > 0 and v > 0 else abs(x - v))
+        elif v is not None and v in a.values:
+            out[a.name] = v
+        else:
+            out[a.name] = a.values[(len(a.values) - 1) // 2]
+    return out
+
+
+def _table_candidate(name: str, table: str, fixed: dict[str, Any], axes: tuple[Axis, ...],
+                     profile: dict[str, Any], params: tuple[str, ...] | None = None
+                     ) -> Candidate:
+    """A candidate that sets its axes as keys of one profile table (plus ``fixed`` keys)."""
+    def make(p: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        return {table: {**fixed, **p}}
+
+    own = profile.get(table, {})
+    return Candidate(name, axes, make, params or tuple(a.name for a in axes),
+                     _default(axes, own))
 
 
 def candidates(
@@ -103,6 +215,12 @@ def candidates(
     return out, skipped
 
 
+# The UERE budget's textbook values (profiles.DopErrorParams), scaled as a whole by dop_error.
+UERE_M = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m": 0.5,
+          "multipath_a_m": 0.13, "multipath_b_m": 0.53}
+GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps about 1
+
+
 def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool,  # noqa: C901
                has_gsv: bool):
     on = {"enabled": True}
@@ -111,34 +229,40 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
             return "the profile has no baseline noise to scale (noise.model = \"none\")"
         mx = float(profile.get("noise", {}).get("max_noise_m", 3.0))
         mn = float(profile.get("noise", {}).get("min_noise_m", 1.0))
-        grid = tuple({"noise": {"max_noise_m": round(mx * f, 3), "min_noise_m": round(mn * f, 3)}}
-                     for f in (1.0, 0.1, 0.25, 0.5, 0.75, 1.5, 2.0, 3.0, 4.0))
-        return Candidate(name, grid, ("max_noise_m", "min_noise_m"))
+
+        def make_noise(p: dict) -> dict:
+            f = p["scale"]
+            return {"noise": {"max_noise_m": round(mx * f, 3), "min_noise_m": round(mn * f, 3)}}
+        axes = (Axis("scale", GEOMETRIC, 0.0, 100.0),)
+        return Candidate(name, axes, make_noise, ("max_noise_m", "min_noise_m"), {"scale": 1.0})
     if name == "correlated_error":
         domain = "range" if dop else "position"
-        grid = _points(name, {**on, "domain": domain},
-                       tau_s=(30.0, 60.0, 100.0, 150.0, 200.0, 300.0, 600.0),
-                       sigma_m=(1.5, 2.5, 3.5, 5.0))
-        return Candidate(name, grid, ("tau_s", "sigma_m", "domain"), default=14)
+        axes = (Axis("tau_s", (15.0, 30.0, 60.0, 120.0, 240.0, 480.0, 960.0), 1.0, 7200.0),
+                Axis("sigma_m", (1.0, 1.6, 2.5, 4.0, 6.3), 0.1, 100.0))
+        return _table_candidate(name, name, {**on, "domain": domain}, axes, profile,
+                                ("tau_s", "sigma_m", "domain"))
     if name == "dop_error":
-        # the UERE budget scaled as a whole (its textbook defaults x f)
-        base = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m": 0.5,
-                "multipath_a_m": 0.13, "multipath_b_m": 0.53}
-        grid = tuple({"dop_error": {**on, **{k: round(v * f, 3) for k, v in base.items()}},
-                      "noise": {"model": "none"}} for f in (1.0, 0.5, 2.0, 3.0))
-        return Candidate(name, grid, tuple(base))
+        def make_dop(p: dict) -> dict:
+            f = p["scale"]
+            return {"dop_error": {**on, **{k: round(v * f, 3) for k, v in UERE_M.items()}},
+                    "noise": {"model": "none"}}
+        axes = (Axis("scale", (0.5, 0.71, 1.0, 1.41, 2.0), 0.0, 20.0),)
+        return Candidate(name, axes, make_dop, tuple(UERE_M), {"scale": 1.0})
     if name == "cold_start":
-        grid = ({name: {**on, "power_on": "hot"}},) + tuple(
-            {name: {**on, "power_on": "cold", "ttff_cold_s": v}}
-            for v in (10.0, 20.0, 30.0, 35.0, 45.0, 60.0, 90.0))
-        return Candidate(name, grid, ("power_on", "ttff_cold_s", "ttff_hot_s"), default=4)
+        def make_start(p: dict) -> dict:
+            v = p["ttff_cold_s"]
+            return ({name: {**on, "power_on": "hot"}} if v == 0 else
+                    {name: {**on, "power_on": "cold", "ttff_cold_s": v}})
+        axes = (Axis("ttff_cold_s", (0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 90.0), 0.0, 1800.0),)
+        return Candidate(name, axes, make_start, ("power_on", "ttff_cold_s"),
+                         _default(axes, profile.get(name, {})))
     if name == "nlos":
         if not has_mesh:
             return "needs a scene with walls (no run is simulated in a mesh)"
         tracking = _enabled(profile, "cn0_tracking")
-        grid = _points(name, on, scattering=(False, True), max_dist_m=(30.0, 50.0),
-                       reflection_loss_db=(3.0, 5.0, 7.0, 9.0, 12.0) if tracking else (7.0,))
-        return Candidate(name, grid, ("scattering", "max_dist_m", "reflection_loss_db"))
+        axes = (Axis("scattering", (False, True)), Axis("max_dist_m", (30.0, 50.0)),
+                Axis("reflection_loss_db", (3.0, 5.0, 7.0, 9.0, 12.0) if tracking else (7.0,)))
+        return _table_candidate(name, name, on, axes, profile)
     if name == "multipath":
         if not dop:
             return "needs dop_error (its range errors are solved with the others)"
@@ -146,47 +270,51 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
         # roof, the ground) reflect everywhere alike: the open-sky proximity is 1 and sigma_m
         # takes the scale.
         fixed = on if has_mesh else {**on, "open_sky_factor": 1.0}
-        grid = _points(name, fixed, sigma_m=(2.0, 4.0, 8.0, 16.0), tau_s=(10.0, 30.0, 100.0))
-        return Candidate(name, grid, ("sigma_m", "tau_s"), default=4)
+        axes = (Axis("sigma_m", (1.0, 2.0, 4.0, 8.0, 16.0), 0.1, 200.0),
+                Axis("tau_s", (10.0, 30.0, 100.0), 1.0, 3600.0))
+        return _table_candidate(name, name, fixed, axes, profile)
     if name == "foliage":
         if not has_mesh:
             return "needs a scene with trees"
-        grid = _points(name, on, db_per_m=(0.5, 1.0, 2.0, 4.0))
-        return Candidate(name, grid, ("db_per_m",), default=1)
+        axes = (Axis("db_per_m", (0.25, 0.5, 1.0, 2.0, 4.0), 0.01, 50.0),)
+        return _table_candidate(name, name, on, axes, profile)
     if name == "sky_mask":
         if not has_gsv:
             return "needs GSV with SNR in the real logs (it is learned from what they track)"
         # Attenuation only means something to a receiver whose tracking follows C/N0; without
         # cn0_tracking a C/N0 deficit is that effect's to explain, not a direction's.
-        return Candidate(name, (), ("az_bin_deg", "el_bin_deg", "atten_db"),
+        return Candidate(name, (), lambda p: {}, ("az_bin_deg", "el_bin_deg", "atten_db"),
                          learned=SKY_MASK_LEVELS,
                          learned_atten=_enabled(profile, "cn0_tracking"))
     if name == "cn0_tracking":
-        grid = _points(name, on, cn0_zenith_dbhz=(30.0, 33.0, 36.0, 39.0, 42.0, 45.0),
-                       horizon_loss_db=(10.0, 16.0, 22.0))
-        return Candidate(name, grid, ("cn0_zenith_dbhz", "horizon_loss_db"), default=13)
+        axes = (Axis("cn0_zenith_dbhz", (30.0, 33.0, 36.0, 39.0, 42.0, 45.0, 48.0), 20.0, 55.0),
+                Axis("horizon_loss_db", (10.0, 16.0, 22.0), 0.0, 40.0))
+        return _table_candidate(name, name, on, axes, profile)
     if name == "elevation_mask":
         cur = float(profile.get("sky", {}).get("elevation_mask_deg", 5.0))
-        vals = tuple(v for v in (0.0, 5.0, 10.0, 15.0, 20.0) if v != cur)
-        grid = tuple({"sky": {"elevation_mask_deg": v}} for v in (cur,) + vals)
-        return Candidate(name, grid, ("elevation_mask_deg",))
+        vals = tuple(sorted({0.0, 5.0, 10.0, 15.0, 20.0, 25.0, cur}))
+        axes = (Axis("elevation_mask_deg", vals, -0.1, 45.0),)
+        return Candidate(name, axes, lambda p: {"sky": {"elevation_mask_deg":
+                                                       p["elevation_mask_deg"]}},
+                         ("elevation_mask_deg",), {"elevation_mask_deg": cur})
     if name == "latency":
         # steps of 0.1-0.15 s below 1 s: a first-order filter of tau lags by
         # exp(-dt/tau) / (1 - exp(-dt/tau)) epochs (0.58 s at tau 1 s, 1 Hz), and a latency
-        # between grid points lost to the filter's nearer lag (self-check: 0.58 and 0.69 s)
-        grid = _points(name, on, latency_s=(0.1, 0.25, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25,
-                                            1.5, 2.0, 3.0))
-        return Candidate(name, grid, ("latency_s",), default=0)
+        # between grid points lost to the filter's nearer lag
+        axes = (Axis("latency_s", (0.1, 0.25, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25, 1.5,
+                                   2.0, 2.5, 3.0), 0.0, 30.0),)
+        return _table_candidate(name, name, on, axes, profile)
     if name == "nav_filter":
-        # 0.5 s steps where receivers' filters lie (and fine latencies): with coarser grids a
-        # pure delay fits a filter's lag better than the filter itself does, and back
-        grid = _points(name, on, tau_s=(0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0))
-        return Candidate(name, grid, ("tau_s",), default=1)
+        # 0.5 s steps where receivers' filters lie: with coarser grids a pure delay fits a
+        # filter's lag better than the filter itself does, and back
+        axes = (Axis("tau_s", (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0), 0.0,
+                     120.0),)
+        return _table_candidate(name, name, on, axes, profile)
     if name == "static_hold":
-        grid = _points(name, on, threshold_mps=(0.2, 0.4, 0.8, 1.5))
-        return Candidate(name, grid, ("threshold_mps",), default=1)
+        axes = (Axis("threshold_mps", (0.2, 0.4, 0.8, 1.6, 3.2), 0.0, 20.0),)
+        return _table_candidate(name, name, on, axes, profile)
     if name == "sbas":
-        return Candidate(name, ({name: dict(on)},), ())
+        return Candidate(name, (), lambda p: {name: dict(on)}, ())
     raise AssertionError(name)
 
 

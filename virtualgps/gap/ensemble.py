@@ -21,7 +21,7 @@ import numpy as np
 
 from virtualgps.profiles import Profile
 from virtualgps.receiver import Georef, Receiver, simulate
-from virtualgps.receiver_state import ReceiverState, initial_state
+from virtualgps.receiver_state import initial_state, running_state
 from virtualgps.sky import Sky, compute_sky
 
 # A worker keeps at most this many skies (one per run and sky-relevant profile settings).
@@ -160,8 +160,10 @@ def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
 def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
     """The profile settings :func:`virtualgps.sky.compute_sky` depends on."""
     mp = profile.multipath
-    return (setup.digest or id(setup), repr(profile.sky), repr(profile.foliage),
-            repr(profile.sky_mask), repr(profile.nlos), mp.enabled, mp.max_dist_m)
+    # (georef: the antenna's geodetic position, hence every direction, follows the conversion)
+    return (setup.digest or id(setup), profile.georef, repr(profile.sky),
+            repr(profile.foliage), repr(profile.sky_mask), repr(profile.nlos), mp.enabled,
+            mp.max_dist_m)
 
 
 def _antenna(setup: RunSetup) -> np.ndarray:
@@ -213,7 +215,7 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
         # random numbers alike (common random numbers across a cold_start fit's grid).
         start_rng = np.random.default_rng([seed, 1])
         state = (initial_state(prof, setup.power_on_unix_s, start_rng, n_sat)
-                 if np.isfinite(setup.power_on_unix_s) else ReceiverState())
+                 if np.isfinite(setup.power_on_unix_s) else running_state(prof, n_sat))
         fixes, _ = simulate(rx, setup.t_unix_s, ant, vel, setup.valid, state, rng, sky=sky)
         out["seeds"].append(np.array([seed]))
         out["lat_deg"].append(fixes.lat_deg)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import multiprocessing
 import os
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
@@ -27,13 +28,59 @@ _POOLS: dict[int, ProcessPoolExecutor] = {}
 _CLIENTS: dict[str, Any] = {}
 
 
+_LIMITS: list[Any] = []
+# Objects every worker needs for many jobs (a run's epochs, its real log, its units), shared
+# once instead of travelling with each job: local workers inherit them when forked (the pool
+# is forked again after they change), Dask workers receive them once each (Client.run).
+_SHARED: dict[str, Any] = {}
+_SHARED_VERSION = [0]
+_POOL_VERSION: dict[int, int] = {}
+_CLIENT_VERSION: dict[str, int] = {}
+
+
+def share(objects: dict[str, Any]) -> None:
+    """Make ``objects`` available to every worker as :func:`shared` (key -> object)."""
+    _SHARED.update(objects)
+    _SHARED_VERSION[0] += 1
+
+
+def unshare(keys: list[str]) -> None:
+    """Forget shared objects (workers forked later, or a later :func:`share`, drop them)."""
+    for k in keys:
+        _SHARED.pop(k, None)
+
+
+def shared(key: str) -> Any:
+    """An object given to :func:`share`, in whichever process the job runs."""
+    return _SHARED[key]
+
+
+def _install(objects: dict[str, Any]) -> None:
+    _SHARED.update(objects)
+
+
+def one_blas_thread() -> None:
+    """Hold this process's BLAS/OpenMP pools to one thread (threadpoolctl): a worker is one of
+    many on the machine, and each job's small matrix products gain nothing from threads that
+    only contend with the other workers."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # (a core dependency; the guard keeps an odd install working)
+        return
+    _LIMITS.append(threadpool_limits(limits=1))
+
+
 def _pool(n: int) -> ProcessPoolExecutor:
     pool = _POOLS.get(n)
+    if pool is not None and _POOL_VERSION.get(n) != _SHARED_VERSION[0]:
+        pool.shutdown(wait=True)  # its workers were forked before the shared objects changed
+        pool = None
     if pool is None:
         # fork: workers start with this process's modules imported and its caches filled
         ctx = multiprocessing.get_context("fork") if hasattr(os, "fork") else None
-        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx)
+        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=one_blas_thread)
         _POOLS[n] = pool
+        _POOL_VERSION[n] = _SHARED_VERSION[0]
     return pool
 
 
@@ -48,6 +95,7 @@ def shutdown(wait: bool = True) -> None:
         except Exception:  # noqa: BLE001 - closing a client whose scheduler went away
             pass
     _CLIENTS.clear()
+    _CLIENT_VERSION.clear()
 
 
 atexit.register(shutdown, wait=False)
@@ -67,6 +115,7 @@ def _client(address: str) -> Any:
     except (OSError, TimeoutError) as exc:
         raise ConfigError(f"--dask {address}: cannot reach the Dask scheduler within "
                           f"{DASK_CONNECT_TIMEOUT_S:.0f} s ({exc})") from None
+    client.run(one_blas_thread)  # every worker of the cluster, once
     _CLIENTS[address] = client
     return client
 
@@ -96,10 +145,32 @@ def map_jobs(
     ------
     Whatever ``fn`` raised, for the first failing item (the other jobs are not waited for).
     """
-    items = list(items)
+    t0 = time.perf_counter()
+    try:
+        return _map(fn, list(items), jobs, dask_address, progress)
+    finally:
+        STATS["batches"].append(len(items))
+        STATS["wall_s"] += time.perf_counter() - t0
+
+
+# Time spent in map_jobs (the parallel part) and the size of each batch, for the benchmark.
+STATS: dict[str, Any] = {"batches": [], "wall_s": 0.0}
+
+
+def reset_stats() -> None:
+    """Start counting :data:`STATS` afresh."""
+    STATS["batches"] = []
+    STATS["wall_s"] = 0.0
+
+
+def _map(fn: Callable[[T], R], items: list[T], jobs: int | None, dask_address: str | None,
+         progress: Callable[[int, int], None] | None) -> list[R]:
     total = len(items)
     if dask_address is not None:
         client = _client(dask_address)
+        if _CLIENT_VERSION.get(dask_address) != _SHARED_VERSION[0]:
+            client.run(_install, dict(_SHARED))
+            _CLIENT_VERSION[dask_address] = _SHARED_VERSION[0]
         futures = client.map(fn, items, pure=False)
         out = client.gather(futures)
         if progress is not None:

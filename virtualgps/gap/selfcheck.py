@@ -47,6 +47,7 @@ from virtualgps.sky import compute_sky
 
 DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
 SEED_BASE = 100_000  # pseudo-real seeds lie far from the diagnosis' seeds 0..N
+NOTHING = "nothing"  # what a diagnosis that adds no effect ranks first
 
 
 @dataclass(frozen=True)
@@ -228,10 +229,51 @@ def _low_sats(rx: Receiver, t: np.ndarray, enu: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Spec:
+    """What one kind of trial injects: its label, the profile under test, the tables that
+    withhold the effects from it, and the effects injected (none for a null trial).
+
+    kind : "single", "pair" or "null"; effects : the injected effects' names
+    scenarios : the trajectories it is checked on (cycled over trials)
+    """
+
+    label: str
+    kind: str
+    base: str
+    withhold: dict
+    effects: tuple[str, ...]
+    scenarios: tuple[str, ...]
+
+
+def spec_of(label: str) -> Spec:
+    """The trial spec of an effect name, a pair ``a+b`` of effects or ``nothing@PROFILE``."""
+    if label.startswith(NOTHING):
+        base = label.partition("@")[2] or "holux-m1000"
+        return Spec(label, "null", base, {}, (), NULL_SCENARIOS[base])
+    names = tuple(label.split("+"))
+    injs = [INJECTIONS[n] for n in names]
+    if len({i.base for i in injs}) != 1:
+        raise ValueError(f"{label}: the effects are checked on different profiles")
+    common = tuple(sc for sc in injs[0].scenarios if all(sc in i.scenarios for i in injs))
+    withhold: dict = {}
+    for i in injs:
+        withhold = fx.apply(withhold, i.withhold)
+    return Spec(label, "pair" if len(names) > 1 else "single", injs[0].base, withhold, names,
+                common or injs[0].scenarios)
+
+
+# Null trials: logs made by the profile under test itself, in each kind of place.
+NULL_SCENARIOS = {"holux-m1000": ("static_open", "moving_open", "static_built", "moving_built"),
+                  "usarsim": ("static_open", "moving_open")}
+# Two effects at once, on the profile both are withheld from, where both can show.
+PAIRS = ("cold_start+latency", "cn0_tracking+static_hold")
+
+
+@dataclass(frozen=True)
 class Trial:
     """One pseudo-real run, written to files the diagnosis reads."""
 
-    effect: str
+    label: str
     index: int
     scenario: str
     injected: dict
@@ -242,14 +284,14 @@ class Trial:
     profile: Path
 
 
-def make_trial(effect: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
+def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
                open_tle: str) -> Trial:
     """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial."""
     from virtualgps.ephemeris import load_tle
 
-    inj = INJECTIONS[effect]
-    rng = np.random.default_rng([SEED_BASE, list(INJECTIONS).index(effect), index])
-    scenario = inj.scenarios[index % len(inj.scenarios)]
+    spec = spec_of(label)
+    rng = np.random.default_rng([SEED_BASE, _label_index(label), index])
+    scenario = spec.scenarios[index % len(spec.scenarios)]
     built = scenario.endswith("built")
     tle = scene_tle if built else open_tle
     eph = load_tle(tle)
@@ -263,18 +305,22 @@ def make_trial(effect: str, index: int, work: Path, scene, scene_dir: str, scene
         georef = Georef(round(float(rng.uniform(-55, 55)), 4),
                         round(float(rng.uniform(-180, 180)), 4), 100.0)
         enu = _moving_enu(rng, t) if scenario.startswith("moving") else np.zeros((t.size, 3))
-    base, _ = load_profile_dict(inj.base)
-    withheld = fx.apply(base, inj.withhold)
-    injected = inj.draw(rng, _low_sats(Receiver(fx.build(withheld), eph, scene if built else None,
-                                                  georef), t, enu))
-    real_prof = fx.build(fx.apply(withheld, injected), f"selfcheck {effect}")
+    base, _ = load_profile_dict(spec.base)
+    withheld = fx.apply(base, spec.withhold)
+    injected: dict = {}
+    if spec.effects:
+        low = _low_sats(Receiver(fx.build(withheld), eph, scene if built else None, georef), t,
+                        enu)
+        for name in spec.effects:
+            injected = fx.apply(injected, INJECTIONS[name].draw(rng, low))
+    real_prof = fx.build(fx.apply(withheld, injected), f"selfcheck {label}")
     rx = Receiver(real_prof, eph, scene if built else None, georef)
     track = pose.PoseTrack(t, "enu", enu, np.full(enu.shape, np.nan))
     buf = io.BytesIO()
     fmt = nmea.NmeaFormat.from_dict(real_prof.nmea)
     run_replay(rx, track, epoch_grid(t, real_prof.rate_hz, None), fmt, buf,
-               SEED_BASE + 1000 * list(INJECTIONS).index(effect) + index)
-    tag = f"{effect}-{index}"
+               SEED_BASE + 1000 * _label_index(label) + index)
+    tag = f"{label.replace('@', '-').replace('+', '-')}-{index}"
     work.mkdir(parents=True, exist_ok=True)
     real = work / f"{tag}.nmea"
     real.write_bytes(buf.getvalue())
@@ -289,17 +335,42 @@ def make_trial(effect: str, index: int, work: Path, scene, scene_dir: str, scene
             for ti, a, b, c in zip(t, lat, lon, alt, strict=True)))
         truth = str(truth_path)
     prof_path = work / f"{tag}-profile.toml"
-    withheld = dict(withheld, name=f"{inj.base}-without-{effect}")
+    withheld = dict(withheld, name=f"{spec.base}-without-{label}" if spec.effects
+                    else spec.base)
     prof_path.write_text(fx.to_toml(withheld), encoding="utf-8")
-    return Trial(effect, index, scenario, injected, real, truth,
+    return Trial(label, index, scenario, injected, real, truth,
                  scene_dir if built else None, tle, prof_path)
 
 
-def _recovered(effect: str, report: dict) -> dict:
+def _label_index(label: str) -> int:
+    """A stable number per trial label (the trial's random streams)."""
+    if label in INJECTIONS:
+        return list(INJECTIONS).index(label)
+    return 100 + sum((k + 1) * ord(c) for k, c in enumerate(label)) % 10_000
+
+
+def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict]:
+    """The fitted parameters of the injected effects as the report gives them, and their
+    near-optimal intervals (the grid points within the seeds' noise of the best)."""
+    params, intervals = {}, {}
     for e in report["effects"]:
-        if e["name"] == effect:
-            return dict(e["params"])
-    return {}
+        if e["name"] in names and e.get("accepted"):
+            params.update(e["params"])
+            intervals.update((e.get("fit") or {}).get("intervals", {}))
+    return params, intervals
+
+
+def covered(injected: dict, intervals: dict) -> dict[str, bool]:
+    """Per numeric injected parameter with an interval: does the interval hold it? (An
+    interval is a set of grid points: a value between two neighbouring points counts as held
+    when it lies within the interval's span widened to those neighbours.)"""
+    out = {}
+    for k, v in injected.items():
+        iv = intervals.get(k)
+        if isinstance(v, int | float) and not isinstance(v, bool) and isinstance(iv, list) \
+                and len(iv) == 2 and all(isinstance(x, int | float) for x in iv):
+            out[k] = bool(iv[0] - 1e-9 <= v <= iv[1] + 1e-9)
+    return out
 
 
 def _flat(tables: dict) -> dict:
@@ -309,16 +380,61 @@ def _flat(tables: dict) -> dict:
     return out
 
 
+def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dict:
+    """The self-check's record of one trial."""
+    accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
+    # "nothing" ranks after the added effects and before every candidate not added
+    ranked = accepted + [NOTHING] + [e["name"] for e in report["effects"]
+                                     if not e.get("accepted")]
+    params, intervals = recovered(effects, report)
+    injected = _flat(trial.injected)
+    where = report["where"]
+    if kind == "null":
+        success = ranked[0] == NOTHING
+    elif kind == "pair":
+        success = set(accepted[:len(effects)]) == set(effects)
+    else:
+        success = ranked[0] == effects[0]
+    outer = report.get("outer") or {}
+    return {
+        "injected": trial.label, "kind": kind, "effects": list(effects),
+        "scenario": trial.scenario, "params": injected, "ranked": ranked,
+        "accepted": accepted, "ranked_first": ranked[0],
+        "added_first": accepted[0] if accepted else NOTHING, "success": success,
+        "recovered": params, "recovered_interval": intervals,
+        "covered": covered(injected, intervals),
+        "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
+        "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
+        "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
+        "causes": [c["name"] for c in report.get("causes", [])
+                   if c.get("applied") or c["name"] == "georeference_model"],
+        "real": str(trial.real), "truth": trial.truth,
+    }
+
+
+def default_labels(effects: tuple[str, ...] | None) -> list[str]:
+    """The trial labels of a self-check: every injectable effect (or those asked), the null
+    trials of each profile, and the pairs (all, when no effect is named)."""
+    if effects:
+        return [e for e in effects if e in INJECTIONS or "+" in e or e.startswith(NOTHING)]
+    return ([*INJECTIONS] + [f"{NOTHING}@{p}" for p in NULL_SCENARIOS] + list(PAIRS))
+
+
 def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
-        progress: Callable[[str], None] | None = None) -> dict:
+        progress: Callable[[str], None] | None = None, labels: list[str] | None = None,
+        data: str | Path | None = None) -> dict:
     """Run the self-check and write ``selfcheck.json`` and ``report.html`` into ``out_dir``.
 
     Parameters
     ----------
-    opts : diagnosis options (``effects`` restricts the injected effects)
-    trials : trials per effect
+    opts : diagnosis options (``effects`` restricts the trials: effect names, pairs ``a+b``,
+        ``nothing@PROFILE``)
+    trials : trials per label
     out_dir : output folder (its ``work/`` subfolder keeps the pseudo-real logs)
     progress : called with a short text as trials finish
+    labels : the trial labels (default: :func:`default_labels` of ``opts.effects``)
+    data : the shared real logs (``../shared/data``): real-log bases with effects injected
+        (:mod:`.selfcheck_real`); None: none
 
     Returns
     -------
@@ -336,58 +452,96 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
     scene = load_scene(scene_dir)
     scene_tle = str(scene.tle_path)
     open_tle = str(default_tle_path())
-    names = [e for e in (opts.effects or tuple(INJECTIONS)) if e in INJECTIONS]
+    labels = labels if labels is not None else default_labels(opts.effects)
     diag_opts = replace(opts, effects=None)
     rows = []
-    for effect in names:
+    for label in labels:
+        spec = spec_of(label)
         for i in range(trials):
-            tr = make_trial(effect, i, work, scene, scene_dir, scene_tle, open_tle)
+            tr = make_trial(label, i, work, scene, scene_dir, scene_tle, open_tle)
             inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene=tr.scene or "none",
                                  tle=tr.tle, profile=str(tr.profile))
             report, _, _ = tool.diagnose(inp, diag_opts)
-            ranked = [e["name"] for e in report["effects"]]
-            accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
-            first = ranked[0] if ranked else "none"
-            rows.append({
-                "injected": effect, "scenario": tr.scenario, "params": _flat(tr.injected),
-                "ranked": ranked, "accepted": accepted, "ranked_first": first,
-                "added_first": accepted[0] if accepted else "none",
-                "recovered": _recovered(effect, report),
-                "gap_before": report["gap_baseline"],
-                "gap_after": report["gap_final"],
-                "real": str(tr.real), "truth": tr.truth,
-            })
+            rows.append(_row(tr, spec.kind, spec.effects, report))
             if progress:
-                progress(f"self-check {effect} trial {i + 1}/{trials}: ranked first {first}, "
-                         f"added first {rows[-1]['added_first']}")
-    confusion = _confusion(rows, "ranked_first")
-    summary = {}
-    for effect in names:
-        mine = [r for r in rows if r["injected"] == effect]
-        hits = sum(r["ranked_first"] == effect for r in mine)
-        added = sum(r["added_first"] == effect for r in mine)
-        summary[effect] = {"trials": len(mine), "ranked_first": hits, "added_first": added,
-                           "share": hits / len(mine) if mine else float("nan")}
-    n = len(rows)
-    right = sum(r["ranked_first"] == r["injected"] for r in rows)
-    other = sum(r["ranked_first"] not in (r["injected"], "none") for r in rows)
-    added_right = sum(r["added_first"] == r["injected"] for r in rows)
-    added_other = sum(r["added_first"] not in (r["injected"], "none") for r in rows)
-    result = {"trials": rows, "confusion": confusion,
-              "confusion_added_first": _confusion(rows, "added_first"), "summary": summary,
-              "share_ranked_first": right / n if n else float("nan"),
-              "share_other_first": other / n if n else float("nan"),
-              "share_added_first": added_right / n if n else float("nan"),
-              "share_other_added_first": added_other / n if n else float("nan"),
-              "seeds": opts.seeds, "fit_seeds": opts.n_fit}
+                progress(f"self-check {label} trial {i + 1}/{trials}: ranked first "
+                         f"{rows[-1]['ranked_first']}")
+    real_note = None
+    if data is not None:
+        from virtualgps.gap import selfcheck_real
+
+        real_rows, real_note = selfcheck_real.run(Path(data), diag_opts, trials, work,
+                                                  progress)
+        rows += real_rows
+    result = summarise(rows, opts)
+    if real_note:
+        result["real_bases_note"] = real_note
     out.mkdir(parents=True, exist_ok=True)
     rp.write_json(result, out / "selfcheck.json")
     rp.write_selfcheck_html(result, out / "report.html")
     return result
 
 
+def _share_interval(k: int, n: int) -> list[float]:
+    """The Clopper-Pearson 95 % interval of a share k/n."""
+    from scipy import special
+
+    if n == 0:
+        return [math.nan, math.nan]
+    lo = 0.0 if k == 0 else float(special.betaincinv(k, n - k + 1, 0.025))
+    hi = 1.0 if k == n else float(special.betaincinv(k + 1, n - k, 0.975))
+    return [lo, hi]
+
+
+def summarise(rows: list[dict], opts: dg.Options) -> dict:
+    """``selfcheck.json``: the trials, the confusion matrices (``nothing`` included), per label
+    the success share and parameter coverage, and the band's calibration under the null."""
+    labels = list(dict.fromkeys(r["injected"] for r in rows))
+    summary = {}
+    for label in labels:
+        mine = [r for r in rows if r["injected"] == label]
+        cov = [v for r in mine for v in r["covered"].values()]
+        summary[label] = {
+            "kind": mine[0]["kind"], "trials": len(mine),
+            "ranked_first": sum(r["ranked_first"] == (r["effects"][0] if r["effects"]
+                                                      else NOTHING) for r in mine),
+            "success": sum(r["success"] for r in mine),
+            "share": sum(r["success"] for r in mine) / len(mine),
+            "parameters_covered": f"{sum(cov)}/{len(cov)}" if cov else None,
+        }
+    null = [r for r in rows if r["kind"] == "null"]
+    n_rows = sum(r["where_rows"] for r in null)
+    n_out = sum(r["where_outside"] for r in null)
+    any_out = sum(r["where_outside"] > 0 for r in null)
+    calibration = {
+        "reports": len(null), "reports_with_any_row_outside": any_out,
+        "report_share": any_out / len(null) if null else math.nan,
+        "report_share_interval": _share_interval(any_out, len(null)),
+        "rows": n_rows, "rows_outside": n_out,
+        "row_share": n_out / n_rows if n_rows else math.nan,
+        "nominal": "false-discovery rate 0.05 over a report's rows: under the null at most 5 % "
+                   "of reports show any row outside",
+        "effects_added": sum(bool(r["accepted"]) for r in null),
+    }
+    n = len(rows)
+    single = [r for r in rows if r["kind"] in ("single", "real")]
+    return {
+        "trials": rows,
+        "confusion": _confusion(rows, "ranked_first"),
+        "confusion_added_first": _confusion(rows, "added_first"),
+        "summary": summary,
+        "null_calibration": calibration,
+        "share_success": sum(r["success"] for r in rows) / n if n else math.nan,
+        "share_ranked_first": (sum(r["ranked_first"] == r["effects"][0] for r in single)
+                               / len(single) if single else math.nan),
+        "share_other_first": (sum(r["ranked_first"] not in (r["effects"][0], NOTHING)
+                                  for r in single) / len(single) if single else math.nan),
+        "seeds": opts.seeds, "fit_seeds": opts.n_fit,
+    }
+
+
 def _confusion(rows: list[dict], key: str) -> dict[str, dict[str, int]]:
-    """injected -> {effect in ``key`` (ranked or added first): trials}."""
+    """injected -> {effect in ``key`` (ranked or added first; ``nothing``): trials}."""
     out: dict[str, dict[str, int]] = {}
     for r in rows:
         c = out.setdefault(r["injected"], {})
@@ -396,14 +550,25 @@ def _confusion(rows: list[dict], key: str) -> dict[str, dict[str, int]]:
 
 
 def summary_lines(result: dict) -> list[str]:
-    """The terminal summary: per effect, how often it was ranked first and added first."""
-    lines = [f"self-check: {len(result['trials'])} trials, injected effect ranked first in "
-             f"{100 * result['share_ranked_first']:.0f} % (another effect in "
-             f"{100 * result['share_other_first']:.0f} %), added first in "
-             f"{100 * result['share_added_first']:.0f} % (another effect in "
-             f"{100 * result['share_other_added_first']:.0f} %)"]
-    for effect, s in result["summary"].items():
-        others = {k: v for k, v in result["confusion"][effect].items() if k != effect}
-        lines.append(f"  {effect}: ranked first {s['ranked_first']}/{s['trials']}, added first "
-                     f"{s['added_first']}/{s['trials']}" + (f" (else {others})" if others else ""))
+    """The terminal summary: per trial label, how often the diagnosis got it right."""
+    cal = result["null_calibration"]
+    lines = [f"self-check: {len(result['trials'])} trials, right in "
+             f"{100 * result['share_success']:.0f} %; injected effect ranked first in "
+             f"{100 * _nz(result['share_ranked_first']):.0f} % of single-effect trials "
+             f"(another effect in {100 * _nz(result['share_other_first']):.0f} %)"]
+    if cal["reports"]:
+        lines.append(f"  null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports "
+                     f"with a located gap ({cal['rows_outside']}/{cal['rows']} rows), "
+                     f"{cal['effects_added']} with an effect added")
+    for label, s in result["summary"].items():
+        others = {k: v for k, v in result["confusion"][label].items()
+                  if k != (label if s["kind"] != "null" else NOTHING)}
+        lines.append(f"  {label}: right {s['success']}/{s['trials']}"
+                     + (f", parameters covered {s['parameters_covered']}"
+                        if s["parameters_covered"] else "")
+                     + (f" (ranked first instead: {others})" if others else ""))
     return lines
+
+
+def _nz(x: float) -> float:
+    return x if isinstance(x, int | float) and math.isfinite(x) else 0.0

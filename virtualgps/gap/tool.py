@@ -5,6 +5,7 @@ parses arguments and prints.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -17,10 +18,21 @@ import numpy as np
 from virtualgps import ephemeris as eph
 from virtualgps.config import coverage_note
 from virtualgps.exceptions import ConfigError
+from virtualgps.gap import causes as cz
 from virtualgps.gap import diagnose as dg
+from virtualgps.gap import effects as fx
+from virtualgps.gap import select as sel
+from virtualgps.gap.bands import band_description
+from virtualgps.gap.design import make_design
+from virtualgps.gap.jobs import unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
-from virtualgps.gap.where import Obs, RunView, tracked_fractions
+from virtualgps.gap.runs import prepare_runs, sim_obs
+from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
+from virtualgps.gap.where import Obs, RunView, autocorr_time_s, errors_enu, tracked_fractions
 from virtualgps.profiles import build_profile, load_profile_dict
+from virtualgps.skytime import choose_tle_set
+
+log = logging.getLogger(__name__)
 
 # The gap tool propagates the TLE set straight to the log's time up to this far from its epoch
 # (SGP4 beats a sidereal shift for weeks: ephemeris.sidereal_shift_s); beyond, the same
@@ -54,27 +66,6 @@ def _names(paths: Sequence[str]) -> list[str]:
         seen[stem] = seen.get(stem, 0) + 1
         out.append(stem if seen[stem] == 1 else f"{stem}-{seen[stem]}")
     return out
-
-
-def nearest_tle_set(extra: Sequence[Path], t_unix_s: float) -> Path:
-    """The TLE set whose epoch lies nearest ``t_unix_s`` among ``extra`` (the scene's), the
-    bundled sets and those ``virtualgps ephemeris fetch`` cached: a real log must be compared
-    with its own day's sky, which a set months away gives only shifted (per-PRN comparisons
-    then mean nothing; :func:`sky_note` says so)."""
-    from virtualgps import tlecache
-
-    sets = [(p, None) for p in extra]
-    sets += [(p, None) for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob("*.tle"))]
-    sets += [(c.path, c.epoch_center_unix_s) for c in tlecache.cached_sets()]
-    best, best_dt = eph.default_tle_path(), math.inf
-    for path, epoch in sets:
-        try:
-            epoch = eph.load_tle(path).epoch_center_unix_s if epoch is None else epoch
-        except (OSError, ValueError):
-            continue
-        if abs(epoch - t_unix_s) < best_dt:
-            best, best_dt = path, abs(epoch - t_unix_s)
-    return best
 
 
 def sky_note(epoch_center_unix_s: float, t_unix_s: float) -> str | None:
@@ -115,14 +106,13 @@ def load_inputs(inp: GapInputs):
         from virtualgps.scene import load_scene
 
         scene = load_scene(spath)
-    if inp.tle is not None:
-        tle = Path(inp.tle)
-    else:
-        scene_tle = getattr(scene, "tle_path", None) if scene is not None else None
-        tle = nearest_tle_set([Path(scene_tle)] if scene_tle else [],
-                              float(runs[0].epochs.t_unix_s[0]))
-    if not tle.exists():
-        raise ConfigError(f"TLE file {tle} not found (give --tle PATH)")
+    if inp.tle is not None and not Path(inp.tle).exists():
+        raise ConfigError(f"TLE file {inp.tle} not found (give --tle PATH)")
+    scene_tle = getattr(scene, "tle_path", None) if scene is not None else None
+    # the same rule as run and replay: the set nearest the first run's start
+    tle, line = choose_tle_set(inp.tle, Path(scene_tle) if scene_tle else None,
+                               float(runs[0].epochs.t_unix_s[0]))
+    log.info("%s", line)
     table, source = load_profile_dict(inp.profile)
     build_profile(table, source)  # validates
     scene_dir = str(spath.parent if spath.is_file() else spath) if spath is not None else None
@@ -160,21 +150,107 @@ def diagnose(
     say(f"{len(runs_in)} run(s) read; ephemeris {Path(tle).name}; simulating along their truth")
     notes = {r.name: n for r in runs_in
              if (n := sky_note(ephem.epoch_center_unix_s, float(r.epochs.t_unix_s[0])))}
-    runs = dg.prepare_runs(runs_in, scene, scene_dir, tle, profile, shift, opts)
+    runs = prepare_runs(runs_in, scene, scene_dir, tle, profile, shift, opts.jobs, opts.dask)
     has_mesh = any(r.setup.scene_path is not None for r in runs) and bool(
         getattr(scene, "has_mesh", False))
-    sim = dg.Simulator(runs, opts, source)
-    seeds = range(opts.seeds)
-    base_ens = sim.ensembles(table, seeds)
-    where, parts = dg.where_table(runs, base_ens)
+    has_gsv = any(r.view.assess["gsv"] and r.view.assess["cn0"] for r in runs)
+
+    say(f"baseline: {opts.seeds} seeds")
+    base_ens, n_base = ensembles(runs, table, range(opts.seeds), opts.jobs, opts.dask, source)
+    # Causes that are not receiver effects come first: a truth offset is removed before
+    # anything is judged against the truth.
+    tau_real = [_corr_time_s(r.view, r.err_real[0]) for r in runs]
+    causes: list[dict] = []
+    for i, r in enumerate(runs):
+        sim_err = errors_enu(r.view, sim_obs(base_ens[i], r.view))
+        off = cz.truth_offset(r, tau_real[i], sim_err)
+        if off is not None:
+            causes.append(off)
+            if off["applied"]:
+                runs[i] = cz.shift_truth(r, off["east_m"], off["north_m"])
+        lag = cz.time_offset(runs[i], tau_real[i])
+        if lag is not None:
+            causes.append(lag)
+    georef = cz.georeference(runs, profile.georef)
+    keys = share_runs(runs)
+    where, parts, alpha = dg.where_table(runs, base_ens)
     say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
-    diag = dg.greedy(sim, table, opts, has_mesh, progress=say)
-    final_table = diag.final_table
-    final_ens = base_ens if not diag.steps else sim.ensembles(final_table, seeds)
-    where_final, parts_final = (where, parts) if not diag.steps else dg.where_table(
-        runs, final_ens)
-    elapsed = time.perf_counter() - t_start
-    report = {
+    # Guards as long as the real error's correlation time: held-out real data then share no
+    # correlated error with the data a fit saw (the simulations use seeds of their own).
+    design = make_design([r.view.name for r in runs], [r.view.t_unix_s for r in runs],
+                         [r.view.valid for r in runs], tau_real, opts.blocks)
+    sim = Simulator(runs, design, opts.n_fit, opts.jobs, opts.dask, source, keys)
+    base = table
+    whole = list(range(len(design.units), len(design.all_units())))  # each run, every epoch
+    if georef is not None:
+        exact = fx.apply(table, {"georef": "wgs84"})
+        sim.request([(t, HELD, whole) for t in (table, exact)])
+        georef["gap_flat_earth"] = sim.gap(table, HELD, whole)
+        georef["gap_exact"] = sim.gap(exact, HELD, whole)
+        georef["applied"] = bool(georef["gap_flat_earth"] - georef["gap_exact"]
+                                 > sel.MIN_GAIN_ABS)
+        if georef["applied"]:
+            base = exact
+        causes.insert(0, georef)
+    choice = None
+    if design.claims:
+        choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say)
+    final_table = choice.full.final_table if choice is not None else base
+    changed = final_table != table
+    final_ens = (ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
+                           source)[0] if changed else base_ens)
+    where_final, parts_final, alpha_final = (dg.where_table(runs, final_ens) if changed
+                                             else (where, parts, alpha))
+    report = _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, design,
+                     choice, causes, where_final, sim, n_base, table, base, final_table)
+    unshare(keys)
+    report["elapsed_s"] = time.perf_counter() - t_start
+    figures = figure_data(runs, base_ens, final_ens if changed else None, parts,
+                          parts_final if changed else None, report)
+    return report, figures, final_table
+
+
+def _corr_time_s(view: RunView, err: np.ndarray) -> float:
+    """The 1/e time of a run's horizontal error over its valid fixed epochs (NaN: longer than
+    half the run, or too short to tell)."""
+    ok = view.valid & np.isfinite(err[:, :2]).all(axis=1)
+    return autocorr_time_s(view.t_unix_s[ok], err[ok, :2])
+
+
+def _outer_share(choice: dg.Choice | None) -> dict[str, float]:
+    if choice is None or not choice.outer:
+        return {}
+    names = {n for o in choice.outer for n in o["effects"]}
+    return {n: sum(n in o["effects"] for o in choice.outer) / len(choice.outer) for n in names}
+
+
+def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, design, choice,
+            causes, where_final, sim, n_base, table, base, final_table) -> dict[str, Any]:
+    """The ``report.json`` content."""
+    share = _outer_share(choice)
+    effects: list[dict] = []
+    if choice is not None:
+        full = choice.full
+        names = {s["name"] for s in full.steps}
+        effects = ([dg.public(s) | {"accepted": True} for s in full.steps]
+                   + [dg.public(r) | {"accepted": False} for r in full.ranking
+                      if r["name"] not in names])
+        for e in effects:
+            e["outer_share"] = share.get(e["name"], 0.0)
+            e["heldout_scheme"] = design.scheme
+            if e["name"] == "latency" and any(c["name"] == "time_offset" for c in causes):
+                e["alias"] = ("a log-vs-truth clock offset of the same size moves the fixes "
+                              "alike (see causes: time_offset)")
+    outer = choice.outer_summary() if choice is not None else None
+    whole = list(range(len(design.units), len(design.all_units())))
+    if choice is not None and outer["groups"]:
+        gap_baseline, gap_final = outer["gap_before"], outer["gap_after"]
+    elif choice is not None:
+        gap_baseline, gap_final = choice.full.baseline, choice.full.final
+    else:
+        sim.request([(base, HELD, whole)])
+        gap_baseline = gap_final = sim.gap(base, HELD, whole)
+    return {
         "runs": [{"name": r.view.name, "real": str(ri.path), "truth": ri.truth.kind,
                   "epochs": int(r.view.t_unix_s.size), **r.info,
                   **({"sky_warning": notes[ri.name]} if ri.name in notes else {})}
@@ -184,30 +260,87 @@ def diagnose(
         "profile_source": source,
         "seeds": opts.seeds,
         "fit_seeds": opts.n_fit,
+        "band": band_description(len(where), opts.seeds, alpha),
         "where": where,
-        "effects": [dg.public(s) | {"accepted": True} for s in diag.steps]
-        + [dg.public(r) | {"accepted": False} for r in diag.ranking
-           if r["name"] not in {s["name"] for s in diag.steps}],
-        "candidates_skipped": diag.skipped,
-        "gap_baseline": diag.gap_baseline,
-        "gap_final": diag.gap_final,
-        "tracking_disagreement": diag.tracking | {
+        "located": located_groups(where),
+        "headline": headline(where, where_final if final_table != table else None),
+        "causes": causes,
+        "design": {"scheme": design.scheme, "units": [u.label for u in design.units],
+                   "guard_s": design.guard_s,
+                   "outer_groups": [[design.units[u].label for u in g] for g in design.outer],
+                   "claims": design.claims, "warnings": design.warnings},
+        "effects": effects,
+        "candidates_skipped": choice.full.skipped if choice is not None else {},
+        "gap_baseline": gap_baseline,
+        "gap_final": gap_final,
+        "gap_selection": ({"baseline": choice.full.baseline, "final": choice.full.final,
+                           "what": "cross-validated inside the choice: each fold's held-out "
+                                   "units were held out from its fit, not from the choice of "
+                                   "effects (optimistic); gap_baseline and gap_final are the "
+                                   "outer test's"} if choice is not None else None),
+        "outer": ({**outer, "folds": choice.outer} if choice is not None else None),
+        "selection_rounds": choice.full.rounds if choice is not None else [],
+        "tracking_disagreement": (choice.full.tracking if choice is not None else {}) | {
             "definition": "sum over PRNs of |real - simulated tracked satellite-epochs| / "
                           "compared satellite-epochs, pooled over the held-out units, each "
                           "simulated with its fold's profile"},
-        "gap_definition": "mean over the assessed score metrics of |ln((real+c)/(sim+c))| "
-                          "(scales) or |real-sim|/scale (shares, levels), capped at 3; "
-                          "held-out units averaged (README: The gap score)",
+        "gap_definition": "mean over the assessed score metrics of each metric's distance: "
+                          "max(0, |z| - 1), z the normal quantile of the real value's two-sided "
+                          "predictive p-value against the seeds (0 within the metric's floor), "
+                          "at most 5; about 0.1 under the null (README: The gap score)",
         "where_final": where_final,
         "unexplained": dg.unexplained(where_final),
         "not_assessed": dg.not_assessed(runs),
-        "heldout": [u[2] for u in sim.units[:sim.n_folds]],
-        "elapsed_s": elapsed,
-        "simulated_epochs": sim.n_sims,
+        "heldout": [u.label for u in design.units],
+        "simulated_epochs": sim.n_sims + n_base,
+        "batches": list(sim.batches),
     }
-    figures = figure_data(runs, base_ens, final_ens if diag.steps else None, parts,
-                          parts_final if diag.steps else None, diag)
-    return report, figures, final_table
+
+
+HEADLINE = (("cep50_m", "CEP50", "m"), ("r95_m", "R95", "m"), ("lag_s", "lag", "s"),
+            ("sats_used_mean", "satellites used", ""), ("hdop_median", "HDOP", ""),
+            ("fix_fraction", "fix fraction", ""), ("ttff_s", "first fix", "s"))
+
+
+def headline(where: list[dict], where_final: list[dict] | None) -> list[dict]:
+    """The figures a roboticist reads first, over all epochs: real, simulated (the profile
+    under test: the seeds' median and the 95 % prediction band of one row; ``outside`` is the
+    report's judgement over all rows) and, where effects were added, calibrated."""
+    def by(rows: list[dict] | None) -> dict[str, dict]:
+        if rows is None:
+            return {}
+        # every epoch, but the first fix where it is measured: after power-on
+        want = {m: ("startup" if m == "ttff_s" else "all") for m, _, _ in HEADLINE}
+        return {w["metric"]: w for w in rows if w["metric"] in want and (
+            want[w["metric"]] == w["segment"] or want[w["metric"]] in w.get("same_as", []))}
+    base, fin = by(where), by(where_final)
+    out = []
+    for metric, label, unit in HEADLINE:
+        if metric not in base:
+            continue
+        w = base[metric]
+        out.append({"metric": metric, "label": label, "unit": unit, "real": w["real"],
+                    "simulated": w["sim_median"], "sim_lo": w["band95"][0],
+                    "sim_hi": w["band95"][1], "outside": w["outside"],
+                    "calibrated": fin[metric]["sim_median"] if metric in fin else None})
+    return out
+
+
+def located_groups(where: list[dict]) -> list[dict]:
+    """The located gaps grouped by metric: the segments where each lies (most extreme first)."""
+    groups: dict[str, list[dict]] = {}
+    for w in where:
+        if w["outside"]:
+            groups.setdefault(w["metric"], []).append(w)
+    out = []
+    for metric, rows in groups.items():
+        rows.sort(key=lambda w: -abs(w["z"]) if math.isfinite(w["z"]) else 0.0)
+        out.append({"metric": metric, "rows": len(rows),
+                    "segments": [w["segment"] for w in rows],
+                    "worst": {k: rows[0][k] for k in ("segment", "real", "sim_lo", "sim_hi",
+                                                      "sim_median", "z")}})
+    out.sort(key=lambda g: -abs(g["worst"]["z"]) if math.isfinite(g["worst"]["z"]) else 0.0)
+    return out
 
 
 def _ephemeris(path: str):
@@ -234,7 +367,7 @@ def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: st
 
 
 def _err_h(view: RunView, obs: Obs) -> np.ndarray:
-    e = dg.errors_enu(view, obs)
+    e = errors_enu(view, obs)
     return np.hypot(e[..., 0], e[..., 1])
 
 
@@ -251,15 +384,15 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dt * np.arange(max_lag + 1), autocorrelation(grid, max_lag)
 
 
-def figure_data(runs, base_ens, final_ens, parts, parts_final, diag) -> Any:
+def figure_data(runs, base_ens, final_ens, parts, parts_final, report) -> Any:
     """Arrays for the report's figures."""
     from virtualgps.report import GapFigureData, RunFigureData
 
     figs = []
     for i, r in enumerate(runs):
         v = r.view
-        sims = dg.sim_obs(base_ens[i], v)
-        fin = dg.sim_obs(final_ens[i], v) if final_ens is not None else None
+        sims = sim_obs(base_ens[i], v)
+        fin = sim_obs(final_ens[i], v) if final_ens is not None else None
         real_eh = np.hypot(r.err_real[0, :, 0], r.err_real[0, :, 1])
         eq4 = np.hypot(v.real.lat_deg - sims.lat_deg, v.real.lon_deg - sims.lon_deg)
         figs.append(RunFigureData(
@@ -278,14 +411,16 @@ def figure_data(runs, base_ens, final_ens, parts, parts_final, diag) -> Any:
     k = int(np.argmax([r.view.t_unix_s.size for r in runs]))
     v = runs[k].view
     lags, real_acf = _acf(v, runs[k].err_real[0, :, :2])
-    sim_err = dg.errors_enu(v, dg.sim_obs(base_ens[k], v))
+    sim_err = errors_enu(v, sim_obs(base_ens[k], v))
     sim_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in sim_err])
     final_acf = None
     if final_ens is not None:
-        fe = dg.errors_enu(v, dg.sim_obs(final_ens[k], v))
+        fe = errors_enu(v, sim_obs(final_ens[k], v))
         final_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in fe])
-    labels = ["baseline"] + [f"+{s['name']}" for s in diag.steps]
-    gaps = [diag.gap_baseline] + [s["gap_after"] for s in diag.steps]
+    steps = [e for e in report["effects"] if e.get("accepted")]
+    sel_gaps = report.get("gap_selection") or {}
+    labels = ["baseline"] + [f"+{s['name']}" for s in steps]
+    gaps = [sel_gaps.get("baseline", report["gap_baseline"])] + [s["gap_after"] for s in steps]
     return GapFigureData(
         runs=tuple(figs), sky_az_deg=az, sky_el_deg=el, sky_disagreement=dis,
         acf_lags_s=lags, real_acf=_pad(real_acf, lags.size), sim_acf=sim_acf,
@@ -308,7 +443,7 @@ def _sky_points(runs, ens) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         v = r.view
         if not (v.assess["gsv"] and v.assess["cn0"]):
             continue
-        sims = dg.sim_obs(ens[i], v)
+        sims = sim_obs(ens[i], v)
         for j in range(v.prn.size):
             ok = v.sat_ok[:, j]
             if not ok.any():
@@ -325,29 +460,55 @@ def _sky_points(runs, ens) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.array(az), np.array(el), np.array(dis)
 
 
+def _num(v: Any, fmt: str = ".3g") -> str:
+    return format(v, fmt) if isinstance(v, int | float) and math.isfinite(v) else "-"
+
+
 def summary_lines(report: dict, top: int = 5) -> list[str]:
-    """A few lines for the terminal: the top located gaps and the ranked effects."""
-    lines = [f"profile {report['profile']}: gap {report['gap_baseline']:.3f} -> "
-             f"{report['gap_final']:.3f} (held out: {report['effects'][0]['heldout_scheme']})"
-             if report["effects"] else f"profile {report['profile']}: gap "
-             f"{report['gap_baseline']:.3f}, no candidate effect"]
+    """A few lines for the terminal: the headline, the causes, the located gaps, the effects."""
+    lines = []
+    for h in report["headline"]:
+        cal = (f", calibrated {_num(h['calibrated'])}" if h.get("calibrated") is not None
+               else "")
+        lines.append(f"{h['label']}: real {_num(h['real'])} {h['unit']}, simulated "
+                     f"{_num(h['simulated'])} ({_num(h['sim_lo'])}..{_num(h['sim_hi'])}){cal}"
+                     + ("  <- gap" if h["outside"] else ""))
+    outer = report.get("outer") or {}
+    scheme = report["design"]["scheme"]
+    if report["effects"] and outer.get("groups"):
+        lines.append(f"profile {report['profile']}: held-out gap {report['gap_baseline']:.3f} "
+                     f"-> {report['gap_final']:.3f} on data neither the choice nor the fit saw "
+                     f"({outer['groups']} outer groups; {scheme})")
+    else:
+        lines.append(f"profile {report['profile']}: gap {_num(report['gap_baseline'])}")
+    lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
     lines += [f"  warning: {r['name']}: {r['sky_warning']}" for r in report["runs"]
               if r.get("sky_warning")]
-    located = [w for w in report["where"] if w["outside"] and w["segment"] in (
-        "all", "startup", "steady", "moving", "stationary", "near_buildings", "open")]
-    located.sort(key=lambda w: -w.get("distance", 0.0))
-    for w in located[:top]:
-        lines.append(f"  gap: {w['metric']} [{w['segment']}] real {w['real']:.3g}, "
-                     f"simulated {w['sim_lo']:.3g}..{w['sim_hi']:.3g}")
+    for c in report.get("causes", []):
+        if c["name"] == "truth_offset" and c["applied"]:
+            lines.append(f"  cause: the truth of {c['run']} sits {c['size_m']:.1f} m off "
+                         f"(E {c['east_m']:+.1f} m, N {c['north_m']:+.1f} m; p "
+                         f"{c['p_value']:.2g}): moved before judging")
+        elif c["name"] == "time_offset" and abs(c["lag_s"]) >= 0.2:
+            lines.append(f"  cause?: the fixes lag the truth of {c['run']} by "
+                         f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
+        elif c["name"] == "georeference_model":
+            lines.append(f"  cause: {c['what']}")
+    for g in report["located"][:top]:
+        w = g["worst"]
+        lines.append(f"  gap: {g['metric']} [{w['segment']}"
+                     + (f" +{g['rows'] - 1} more" if g["rows"] > 1 else "")
+                     + f"] real {_num(w['real'])}, simulated {_num(w['sim_lo'])}.."
+                     f"{_num(w['sim_hi'])}")
     for e in report["effects"][:top]:
         mark = "added" if e.get("accepted") else "not added"
         params = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in e["params"].items())
-        lines.append(f"  effect {e['name']} ({mark}): held-out gap {e['gap_before']:.3f} -> "
-                     f"{e['gap_after']:.3f}" + (f"; {params}" if params else ""))
+        tie = f" (tied with {', '.join(e['tied_with'])})" if e.get("tied_with") else ""
+        lines.append(f"  effect {e['name']} ({mark}){tie}: held-out gap "
+                     f"{e['gap_before']:.3f} -> {e['gap_after']:.3f}"
+                     + (f"; {params}" if params else ""))
     if report.get("not_assessed"):
         lines.append("  not assessed: " + ", ".join(sorted({n["metric"]
                                                              for n in report["not_assessed"]})))
     return lines
-
-

@@ -4,16 +4,15 @@ segment, and the scalar gap score.
 A run is judged as a whole, never epoch by epoch: epochs are strongly correlated (an error
 decorrelates over minutes, a satellite is tracked or not for a whole pass), so each statistic
 is computed over a segment of the real run and over the same segment of every simulated seed,
-and the real value is a located gap when it falls outside the seeds' 2.5-97.5 % band (the
-ensemble percentile of the run's statistic, DESIGN 7.5). Satellite statistics are per PRN over
-a segment, so a pass counts once however many epochs it lasts.
+and the real value is judged against the seeds' values (:mod:`.bands`: a prediction interval
+for a finite ensemble, a practical floor per metric, the false-discovery rate over a report's
+rows). Satellite statistics are per PRN over a segment, so a pass counts once. Segments that
+hold the same epochs (``steady`` when the log starts with a fix, ``open`` in open sky) are one
+row, the other names listed in ``same_as``.
 
-The scalar gap score (README, "The gap score"): the mean over the score metrics assessed on a
-unit of data (a run, or a time block of a single run) of a per-metric distance between the real
-statistic and the ensemble median: ``|ln((real + c) / (sim + c))|`` for scale statistics
-(horizontal errors and the vertical scatter, times, counts, HDOP), ``|real - sim| / scale``
-for shares and levels, each capped at :data:`D_CAP`; lower is better, 0 is no detectable
-disagreement.
+The scalar gap score of a unit of data (a run, or a time block of a single run) is the mean
+over the score metrics it supports of each metric's distance in units of the seeds' own spread
+(:func:`virtualgps.gap.bands.distance`); lower is better, about 0.1 under the null.
 """
 
 from __future__ import annotations
@@ -23,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from virtualgps.gap.bands import METRICS, SCORE_METRICS, band, bh_alpha, distance, judge
 from virtualgps.gap.metrics import (
     INV_E,
     autocorrelation,
@@ -36,36 +36,7 @@ STARTUP_S = 120.0  # the start-up segment: this long after power-on
 MOVING_MPS = 0.3  # truth speed above which an epoch is "moving"
 SECTOR_AZ_DEG = (0, 90, 180, 270, 360)
 SECTOR_EL_DEG = (0, 30, 60, 90)
-BAND = (2.5, 97.5)
-D_CAP = 3.0
 MIN_AUTOCORR_EPOCHS = 120  # a 1/e time needs a record several times longer than itself
-
-# Score metrics: (kind, constant). "log": |ln((r + c) / (s + c))|; "lin": |r - s| / c;
-# "pair": a real-vs-simulated disagreement beyond the seeds' own, / c.
-SCORE: dict[str, tuple[str, float]] = {
-    "cep50_m": ("log", 0.5),
-    "r95_m": ("log", 0.5),
-    "up_p68_m": ("log", 0.5),
-    "autocorr_s": ("log", 2.0),
-    "sats_used_mean": ("log", 0.5),
-    "used_changes_per_min": ("log", 0.5),
-    "tracked_agreement": ("pair", 0.1),
-    "tracked_share": ("lin", 0.05),
-    "cn0_median_dbhz": ("lin", 3.0),
-    "hdop_median": ("log", 0.2),
-    "fix_fraction": ("lin", 0.1),
-    "ttff_s": ("log", 5.0),
-    "lag_s": ("lin", 0.25),
-    "error_step_m": ("log", 0.1),
-    "frozen_fraction": ("lin", 0.1),
-    "dgps_fraction": ("lin", 0.25),
-    "used_el_p05_deg": ("lin", 3.0),
-}
-# Located (the where table) but not scored: eq4_deg compares coordinates epoch by epoch (the
-# paper's view, not a statistic of the receiver); bias_m is one sample per run of the slowest
-# error and of the truth's own offset (a map-picked point, a lever arm), while CEP50 and R95
-# already measure the error against the truth.
-
 
 @dataclass(frozen=True)
 class Obs:
@@ -115,6 +86,7 @@ class RunView:
         already running and the start-up is not assessed
     quantum_min : the resolution of the log's printed positions, arc-minutes (1e-4 for
         ``ddmm.mmmm``; 0: unknown); simulated fixes are rounded alike before comparing
+    hdop_step, alt_step_m : the printed resolution of HDOP and of the altitude (0: unknown)
     """
 
     name: str
@@ -134,6 +106,8 @@ class RunView:
     real: Obs
     started: bool = True
     quantum_min: float = 0.0
+    hdop_step: float = 0.0
+    alt_step_m: float = 0.0
 
     @property
     def valid(self) -> np.ndarray:
@@ -159,14 +133,37 @@ def position_quantum_min(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
     return float(10.0 ** np.round(np.log10(d.min())))
 
 
-def quantize(obs: Obs, quantum_min: float) -> Obs:
+def printed_step(values: np.ndarray, max_decimals: int = 6) -> float:
+    """The resolution a log prints a quantity with (10^-k for the fewest decimals k that write
+    every finite value exactly, e.g. 0.01 for HDOP ``1.00``, 0.1 for ``0.9``); 0.0 without a
+    finite value.
+
+    values : (n,) float as read from the log"""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return 0.0
+    for k in range(max_decimals + 1):
+        scaled = v * 10.0 ** k
+        if np.all(np.abs(scaled - np.round(scaled)) < 1e-6 * np.maximum(1.0, np.abs(scaled))):
+            return float(10.0 ** -k)
+    return 0.0
+
+
+def quantize(obs: Obs, quantum_min: float, hdop_step: float = 0.0, alt_step_m: float = 0.0
+             ) -> Obs:
     """Simulated fixes printed like the real log's: latitude and longitude rounded to
-    ``quantum_min`` arc-minutes (identical fixes in a row then appear as in the log)."""
-    if not quantum_min > 0:
-        return obs
-    def rnd(x: np.ndarray) -> np.ndarray:
-        return np.round(x * 60.0 / quantum_min) * quantum_min / 60.0
-    return replace(obs, lat_deg=rnd(obs.lat_deg), lon_deg=rnd(obs.lon_deg))
+    ``quantum_min`` arc-minutes (identical fixes in a row then appear as in the log), HDOP and
+    altitude to their printed steps (0: left as they are)."""
+    def rnd(x: np.ndarray, step: float) -> np.ndarray:
+        return np.round(x / step) * step if step > 0 else x
+    out = obs
+    if quantum_min > 0:
+        out = replace(out, lat_deg=rnd(out.lat_deg * 60.0, quantum_min) / 60.0,
+                      lon_deg=rnd(out.lon_deg * 60.0, quantum_min) / 60.0)
+    if hdop_step > 0 or alt_step_m > 0:
+        out = replace(out, hdop=rnd(out.hdop, hdop_step), alt_hae_m=rnd(out.alt_hae_m, alt_step_m))
+    return out
 
 
 def errors_enu(view: RunView, obs: Obs) -> np.ndarray:
@@ -228,7 +225,7 @@ def _rowmean(x: np.ndarray) -> np.ndarray:
         return np.where(n > 0, np.nansum(x, axis=1) / n, np.nan)
 
 
-def _autocorr_s(t: np.ndarray, err_h: np.ndarray) -> float:
+def autocorr_time_s(t: np.ndarray, err_h: np.ndarray) -> float:
     """1/e time of a (m, 2) east/north error series (m epochs at times t), NaN if too short."""
     ok = np.isfinite(err_h).all(axis=1)
     if ok.sum() < MIN_AUTOCORR_EPOCHS:
@@ -353,6 +350,46 @@ def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) ->
     return out
 
 
+def lag_curvature_s2(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np.ndarray,
+                     epochs: np.ndarray) -> np.ndarray:
+    """The acceleration term K of e_k = b - L v_k + K a_k, fitted jointly with the lag L, in
+    s^2: what tells a delay from a filter. A fix delayed by L has e = x(t - L) - x(t) =
+    -L v + (L^2 / 2) a + ...; a first-order filter of time constant tau has
+    e = -tau v + tau^2 a - ... (its corners rounded): at the same lag the filter's K is twice
+    the delay's. NaN where the truth hardly accelerates (under 0.1 m/s^2 rms) or fewer than 30
+    epochs.
+
+    err_enu_m : (s, n, 3); vel_enu_mps, acc_enu_mps2 : (n, 3); epochs : (n,) bool;
+    returns (s,) s^2
+    """
+    out = np.full(err_enu_m.shape[0], np.nan)
+    for i, e in enumerate(err_enu_m):
+        ok = epochs & np.isfinite(e[:, :2]).all(axis=1) & np.isfinite(acc_enu_mps2[:, :2]).all(1)
+        if ok.sum() < 30:
+            continue
+        v, a, y = (x[ok, :2] - x[ok, :2].mean(axis=0) for x in (vel_enu_mps, acc_enu_mps2, e))
+        saa = float(np.sum(a * a))
+        if saa < ok.sum() * 0.1 ** 2:
+            continue
+        svv, sva = float(np.sum(v * v)), float(np.sum(v * a))
+        det = svv * saa - sva * sva
+        if not det > 1e-9 * svv * saa:
+            continue
+        # unknowns (L, K) with regressors (-v, a): [[svv, -sva], [-sva, saa]] (L, K) =
+        # (-sum v.e, sum a.e)
+        rv, ra = -float(np.sum(v * y)), float(np.sum(a * y))
+        out[i] = (svv * ra + sva * rv) / det
+    return out
+
+
+def acceleration_enu_mps2(t_unix_s: np.ndarray, vel_enu_mps: np.ndarray) -> np.ndarray:
+    """(n, 3) the truth's acceleration by central differences of its velocity (NaN for a run
+    of fewer than three epochs)."""
+    if t_unix_s.size < 3:
+        return np.full(vel_enu_mps.shape, np.nan)
+    return np.gradient(vel_enu_mps, t_unix_s, axis=0)
+
+
 def _eq4_deg(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
     """The paper's Eq. 4 per epoch: sqrt(dlat^2 + dlon^2), degrees; (s, m)."""
     return np.hypot(a_lat - b_lat, a_lon - b_lon)
@@ -434,9 +471,10 @@ def segment_stats(
             put("bias_m", bias(err_real[:, epochs]), bias(err_sim[:, epochs]))
         if wanted("autocorr_s"):
             te = t[epochs]
-            r = np.array([_autocorr_s(te, err_real[0, epochs, :2])])
+            r = np.array([autocorr_time_s(te, err_real[0, epochs, :2])])
             if np.isfinite(r[0]):
-                put("autocorr_s", r, np.array([_autocorr_s(te, e[epochs, :2]) for e in err_sim]))
+                put("autocorr_s", r, np.array([autocorr_time_s(te, e[epochs, :2])
+                                               for e in err_sim]))
         if wanted("sats_used_mean"):
             def used_mean(o: Obs, f: np.ndarray) -> np.ndarray:
                 return _rowmean(np.where(f, o.sats_used[:, epochs], np.nan))
@@ -477,6 +515,10 @@ def segment_stats(
         if moving.sum() >= 30 and wanted("lag_s"):
             put("lag_s", lag_s(err_real, view.vel_enu_mps, moving),
                 lag_s(err_sim, view.vel_enu_mps, moving))
+        if moving.sum() >= 30 and wanted("lag_curv_s2"):
+            acc = acceleration_enu_mps2(t, view.vel_enu_mps)
+            put("lag_curv_s2", lag_curvature_s2(err_real, view.vel_enu_mps, acc, moving),
+                lag_curvature_s2(err_sim, view.vel_enu_mps, acc, moving))
         if wanted("eq4_deg"):
             def eq4(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
                 return row_quantile(_eq4_deg(a_lat, a_lon, b_lat, b_lon), 0.5)
@@ -511,69 +553,87 @@ def segment_stats(
     return SegmentStats(real, sim, pair)
 
 
-def distance(metric: str, stats: SegmentStats) -> float:
-    """Distance of the real statistic from the ensemble's (see the module docstring), capped
-    at :data:`D_CAP`; NaN when the metric is not a score metric or not assessed."""
-    if metric not in SCORE or metric not in stats.real:
-        return float("nan")
-    kind, c = SCORE[metric]
-    sim = stats.sim[metric]
-    if kind == "pair":
-        # disagreement of real with the simulation beyond the seeds' among themselves
-        dr = 1.0 - float(np.nanmedian(stats.pair[metric]))
-        ds = 1.0 - float(np.nanmedian(sim)) if np.isfinite(sim).any() else 0.0
-        d = max(0.0, dr - ds) / c
-    else:
-        if not np.isfinite(sim).any():
-            return D_CAP  # the real receiver shows it, no seed does (e.g. never a fix)
-        r, s = stats.real[metric], float(np.nanmedian(sim))
-        if kind == "log":
-            d = abs(np.log((max(r, 0.0) + c) / (max(s, 0.0) + c)))
-        else:
-            d = abs(r - s) / c
-    return float(min(d, D_CAP))
-
-
 def gap_score(stats: SegmentStats) -> tuple[float, dict[str, float]]:
-    """The scalar gap of a unit of data: mean distance over its score metrics.
+    """The scalar gap of a unit of data: the mean distance, in units of the seeds' spread, over
+    the score metrics it supports (:func:`virtualgps.gap.bands.distance`).
 
     Returns
     -------
     gap : float (NaN when no score metric is assessed)
     parts : {metric: distance}
     """
-    parts = {m: distance(m, stats) for m in SCORE}
-    parts = {m: d for m, d in parts.items() if np.isfinite(d)}
+    parts = {}
+    for m in SCORE_METRICS:
+        if m in stats.real:
+            d = distance(judge(m, stats.real[m], stats.sim[m]).z)
+            if np.isfinite(d):
+                parts[m] = d
     return (float(np.mean(list(parts.values()))) if parts else float("nan")), parts
 
 
-def band(values: np.ndarray) -> tuple[float, float]:
-    """The ensemble's 2.5-97.5 % band of a statistic (NaN seeds left out)."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return float("nan"), float("nan")
-    lo, hi = np.percentile(v, BAND)
-    return float(lo), float(hi)
-
-
-def where_rows(stats: SegmentStats, segment: str) -> list[dict]:
-    """The contract's ``where`` entries of one segment (DESIGN 7, report.json)."""
+def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
+    """One segment's ``where`` entries before the rows are judged together
+    (:func:`finish_rows`): real value, the ensemble's centre and median, p-value, signed z
+    and score distance. The seeds' values travel in ``_sims``."""
     rows = []
     for metric, r in stats.real.items():
-        lo, hi = band(stats.sim[metric])
-        if not np.isfinite(lo):
-            outside = True  # shown by the real receiver, by no seed
-        else:
-            outside = bool(r < lo or r > hi)
-        row = {"metric": metric, "segment": segment, "real": r, "sim_lo": lo, "sim_hi": hi,
-               "sim_median": float(np.nanmedian(stats.sim[metric]))
-               if np.isfinite(stats.sim[metric]).any() else float("nan"),
-               "outside": outside}
-        if metric in SCORE:
-            row["distance"] = distance(metric, stats)
+        j = judge(metric, r, stats.sim[metric])
+        sims = np.asarray(stats.sim[metric], dtype=float)
+        row = {"metric": metric, "segment": segment, "real": r,
+               "sim_median": float(np.nanmedian(sims)) if np.isfinite(sims).any()
+               else float("nan"),
+               "p_value": j.p, "z": j.z, "floor": j.floor, "seeds_with_value": j.n,
+               "_sims": sims}
+        if METRICS[metric].score:
+            row["distance"] = distance(j.z)
         rows.append(row)
     return rows
+
+
+def finish_rows(rows: list[dict]) -> tuple[list[dict], float]:
+    """Judge a report's rows together: the Benjamini-Hochberg level over their p-values, each
+    row's band at that level and whether the real value leaves it (``outside``).
+
+    Returns
+    -------
+    rows : the rows with ``sim_lo``, ``sim_hi`` (the band at ``alpha_row``), ``outside``,
+        ``q_value`` and ``band95`` (one row's own 95 % prediction band, for reading; ``_sims``
+        dropped)
+    alpha_row : the per-row level used
+    """
+    p = np.array([r["p_value"] for r in rows], dtype=float)
+    alpha = bh_alpha(p)
+    fin = np.isfinite(p)
+    q = np.full(p.size, np.nan)
+    if fin.any():  # BH-adjusted p-values (the smallest FDR at which each row would be flagged)
+        order = np.argsort(p[fin])
+        m = order.size
+        adj = np.minimum.accumulate((p[fin][order] * m / np.arange(1, m + 1))[::-1])[::-1]
+        qf = np.empty(m)
+        qf[order] = np.minimum(adj, 1.0)
+        q[fin] = qf
+    out = []
+    for r, qv in zip(rows, q, strict=True):
+        sims = r.pop("_sims")
+        lo, hi = band(r["metric"], sims, alpha)
+        outside = bool(np.isfinite(r["p_value"]) and (r["real"] < lo or r["real"] > hi))
+        out.append(r | {"sim_lo": lo, "sim_hi": hi, "outside": outside, "q_value": qv,
+                        "band95": list(band(r["metric"], sims, 0.05))})
+    return out, alpha
+
+
+def merged_segments(named: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, list[str]]]:
+    """Segments holding the same epochs as one: name -> (mask, the other names), first name
+    kept (a log that starts with a fix has ``steady`` equal to ``all``)."""
+    out: dict[str, tuple[np.ndarray, list[str]]] = {}
+    for name, m in named.items():
+        same = next((k for k, (mm, _) in out.items()
+                     if mm.shape == m.shape and np.array_equal(mm, m)), None)
+        if same is None:
+            out[name] = (m, [])
+        else:
+            out[same][1].append(name)
+    return out
 
 
 def segments(view: RunView) -> dict[str, np.ndarray]:

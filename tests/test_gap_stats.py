@@ -1,0 +1,267 @@
+"""The gap tool's statistics against closed forms and simulation: calibrated bands under the
+null whatever the seed count, the false-discovery control, practical floors, print resolution,
+the held-out design's blocks and guards, parameter identifiability, the causes that are not
+receiver effects, and the lag terms that tell a delay from a filter."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from virtualgps.gap import bands, causes, design, select, where
+from virtualgps.gap import effects as fx
+
+
+@pytest.mark.parametrize("seeds", [5, 8, 20, 50])
+@pytest.mark.parametrize("metric", ["cep50_m", "fix_fraction"])
+def test_predictive_p_is_uniform_under_the_null_whatever_the_seed_count(seeds, metric):
+    """Real and seeds drawn from one distribution (log-normal CEP, normal share): the share of
+    p-values below 5 % (and 1 %) is the nominal one, within binomial noise."""
+    rng = np.random.default_rng(seeds)
+    n = 4000
+    if metric == "cep50_m":
+        draws = np.exp(rng.normal(np.log(100.0), 0.6, (n, seeds + 1)))
+    else:
+        draws = rng.normal(0.5, 0.15, (n, seeds + 1))
+    p = np.array([bands.judge(metric, d[0], d[1:]).p for d in draws])
+    for level in (0.05, 0.01):
+        share = np.mean(p <= level)
+        se = math.sqrt(level * (1 - level) / n)
+        # the floor (0.5 m / 0.01) can only make the test conservative
+        assert share <= level + 3.5 * se, (level, share)
+        assert share >= level * 0.5, (level, share)
+
+
+def test_band_holds_exactly_the_values_not_flagged():
+    rng = np.random.default_rng(1)
+    sims = np.exp(rng.normal(np.log(5.0), 0.4, 30))
+    for alpha in (0.05, 0.001):
+        lo, hi = bands.band("r95_m", sims, alpha)
+        for real in np.linspace(0.1, 40.0, 400):
+            p = bands.judge("r95_m", real, sims).p
+            inside = lo <= real <= hi
+            assert inside == (p > alpha) or abs(real - lo) < 0.1 or abs(real - hi) < 0.1
+
+
+def test_practical_floor_makes_print_digits_no_gap():
+    sims = np.full(50, 0.9994)
+    j = bands.judge("fix_fraction", 1.0, sims)
+    assert j.p == 1.0 and j.z == 0.0 and bands.distance(j.z) == 0.0
+    j = bands.judge("hdop_median", 1.00, np.full(50, 1.0028))
+    assert j.p == 1.0
+    # beyond the floor a degenerate ensemble is certain
+    j = bands.judge("fix_fraction", 0.9, sims)
+    assert j.p == 0.0 and j.z == -bands.Z_CAP
+
+
+def test_rank_judged_metrics_count_missing_seeds_as_longest():
+    sims = np.array([np.nan] * 40 + list(np.linspace(100, 200, 10)))
+    j = bands.judge("autocorr_s", 30.0, sims)  # below every seed: rank 0 of 50
+    assert j.rank and j.p == pytest.approx(2.0 / 51.0)
+    lo, hi = bands.band("autocorr_s", sims, 0.05)
+    assert math.isinf(hi) and lo <= 100.0
+
+
+def test_bh_alpha_is_the_benjamini_hochberg_threshold():
+    p = np.array([0.001, 0.008, 0.039, 0.041, 0.042, 0.06, 0.074, 0.205, 0.212, 0.216])
+    # the textbook rule at q = 0.05: p_(k) <= 0.05 k / 10 holds up to k = 2
+    assert bands.bh_alpha(p, 0.05) == pytest.approx(0.01)
+    assert bands.bh_alpha(np.full(10, 0.5), 0.05) == pytest.approx(0.005)
+
+
+def test_rows_judged_together_flag_about_q_of_null_reports():
+    """200 null rows per report: with the false-discovery rule, at most ~5 % of reports flag
+    any row (independent rows; the rows of a real report are positively dependent)."""
+    rng = np.random.default_rng(7)
+    reports, any_flag, flagged = 300, 0, 0
+    for _ in range(reports):
+        rows = []
+        for k in range(200):
+            d = np.exp(rng.normal(1.0, 0.3, 21))
+            rows.append({"metric": "cep50_m", "segment": f"s{k}", "real": float(d[0]),
+                         "p_value": bands.judge("cep50_m", d[0], d[1:]).p, "z": 0.0,
+                         "_sims": d[1:]})
+        out, _ = where.finish_rows(rows)
+        n = sum(r["outside"] for r in out)
+        any_flag += n > 0
+        flagged += n
+    assert any_flag / reports <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / reports)
+    assert flagged / (reports * 200) < 0.005
+
+
+def test_score_is_near_zero_under_the_null_and_grows_with_the_gap():
+    rng = np.random.default_rng(3)
+    null = []
+    for _ in range(2000):
+        d = np.exp(rng.normal(1.5, 0.3, 9))
+        null.append(bands.distance(bands.judge("cep50_m", d[0], d[1:]).z))
+    assert np.mean(null) < 0.15
+    sims = np.exp(rng.normal(1.5, 0.3, 8))
+    far = [bands.distance(bands.judge("cep50_m", np.exp(1.5) * f, sims).z) for f in (2, 4, 8)]
+    assert far[0] < far[1] < far[2] <= bands.D_CAP
+
+
+def test_printed_step_reads_the_logs_digits():
+    assert where.printed_step(np.array([1.0, 0.99, 1.23])) == pytest.approx(0.01)
+    assert where.printed_step(np.array([0.9, 1.1, 2.0])) == pytest.approx(0.1)
+    assert where.printed_step(np.array([135.2, 140.0, np.nan])) == pytest.approx(0.1)
+    assert where.printed_step(np.array([np.nan])) == 0.0
+
+
+def test_segments_holding_the_same_epochs_are_one_row():
+    a = np.array([True, True, False])
+    got = where.merged_segments({"all": np.ones(3, bool), "steady": np.ones(3, bool),
+                                 "moving": a, "open": np.ones(3, bool)})
+    assert list(got) == ["all", "moving"] and got["all"][1] == ["steady", "open"]
+
+
+# --- held-out design ---------------------------------------------------------------------------
+
+
+def test_blocks_are_guarded_by_the_correlation_time():
+    t = np.arange(3600.0)
+    d = design.make_design(["hour"], [t], [np.ones(t.size, bool)], [150.0], 4)
+    assert d.claims and len(d.units) == 4 and len(d.outer) == 4
+    spans = [(t[u.mask][0], t[u.mask][-1]) for u in d.units]
+    for (_, end), (start, _) in zip(spans[:-1], spans[1:], strict=True):
+        assert start - end >= 150.0
+    assert not (d.units[0].mask & d.units[1].mask).any()
+
+
+def test_a_run_too_short_for_blocks_claims_nothing():
+    t = np.arange(10.0)
+    d = design.make_design(["ten"], [t], [np.ones(10, bool)], [5.0], 4)
+    assert not d.claims and d.outer == [] and "no effect is claimed" in d.warnings[-1]
+
+
+def test_three_runs_are_left_out_one_at_a_time():
+    ts = [np.arange(300.0)] * 3
+    d = design.make_design(["a", "b", "c"], ts, [np.ones(300, bool)] * 3, [np.nan] * 3, 4)
+    assert d.scheme == "leave one run out" and len(d.units) == 3 and d.outer == [[0], [1], [2]]
+
+
+# --- fits ----------------------------------------------------------------------------------------
+
+
+def _cand() -> fx.Candidate:
+    axes = (fx.Axis("tau_s", (30.0, 60.0, 120.0, 240.0, 480.0), 1.0, 7200.0),
+            fx.Axis("sigma_m", (1.0, 2.0, 4.0), 0.1, 100.0))
+    return fx.Candidate("correlated_error", axes, lambda p: {"correlated_error": dict(p)},
+                        ("tau_s", "sigma_m"), {"tau_s": 120.0, "sigma_m": 2.0})
+
+
+def test_identify_reports_what_the_data_cannot_pin_down():
+    c = _cand()
+    pts = c.points
+    # the objective depends on sigma only: tau is not identifiable and stays at its default
+    j = np.array([abs(p["sigma_m"] - 4.0) for p in pts])
+    idx, info = select.identify(c, j, j + 0.001)
+    assert pts[idx] == {"tau_s": 120.0, "sigma_m": 4.0}
+    assert info["identifiable"] == {"tau_s": False, "sigma_m": True}
+    assert info["grid_edge"] == {"sigma_m": "upper"}
+    # flat: the default point
+    idx, info = select.identify(c, np.zeros(len(pts)), np.zeros(len(pts)))
+    assert pts[idx] == c.default and info["flat"]
+
+
+def test_an_axis_extends_on_its_own_spacing():
+    c = _cand()
+    assert c.extended("tau_s", True).axes[0].values[-1] == 960.0
+    assert c.extended("sigma_m", False).axes[1].values[0] == 0.5
+    lat = fx.Axis("latency_s", (0.1, 0.25, 0.4), 0.0, 30.0)
+    assert lat.step_beyond(False) is None  # 0.1 - 0.15 < 0
+
+
+def test_defaults_are_the_profiles_own_values_or_the_grids_centre():
+    usarsim = {"noise": {"model": "usarsim"}}
+    cands = {c.name: c for c in fx.candidates(usarsim, has_mesh=False)[0]}
+    ce = cands["correlated_error"]
+    assert ce.default == {"tau_s": 120.0, "sigma_m": 2.5}  # the grid's centre
+    own = {"noise": {"model": "none"}, "correlated_error": {"tau_s": 500.0, "sigma_m": 1.2}}
+    ce = {c.name: c for c in fx.candidates(own, has_mesh=False)[0]}["correlated_error"]
+    assert ce.default == {"tau_s": 480.0, "sigma_m": 1.0}  # nearest the profile's own
+
+
+# --- causes outside the receiver -----------------------------------------------------------------
+
+
+def _gm(rng: np.random.Generator, n: int, tau_s: float, sigma_m: float) -> np.ndarray:
+    a = math.exp(-1.0 / tau_s)
+    x = np.zeros((n, 2))
+    x[0] = rng.normal(0, sigma_m, 2)
+    w = rng.normal(0, sigma_m * math.sqrt(1 - a * a), (n, 2))
+    for k in range(1, n):
+        x[k] = a * x[k - 1] + w[k]
+    return x
+
+
+def _run_with_errors(err_en: np.ndarray):
+    from types import SimpleNamespace
+
+    n = err_en.shape[0]
+    view = SimpleNamespace(reference="truth", valid=np.ones(n, bool),
+                           t_unix_s=np.arange(float(n)), name="r")
+    err = np.zeros((1, n, 3))
+    err[0, :, :2] = err_en
+    return SimpleNamespace(view=view, err_real=err)
+
+
+def test_a_truth_offset_is_told_from_a_slow_receiver_error():
+    rng = np.random.default_rng(11)
+    hits_null = 0
+    for _ in range(40):
+        e = _gm(rng, 3600, 150.0, 3.5)
+        off = causes.truth_offset(_run_with_errors(e), 150.0, np.zeros((3, 3600, 3)))
+        hits_null += off["applied"]
+    assert hits_null <= 3  # 1 % level, 40 runs
+    e = _gm(rng, 3600, 150.0, 3.5) + np.array([8.0, 0.0])
+    off = causes.truth_offset(_run_with_errors(e), 150.0, np.zeros((3, 3600, 3)))
+    assert off["applied"] and off["east_m"] == pytest.approx(8.0, abs=2.5)
+    lo, hi = off["interval_m"]["east"]
+    assert lo < 8.0 < hi
+
+
+def test_flat_earth_misplaces_a_far_run_by_tens_of_metres():
+    from types import SimpleNamespace
+
+    from virtualgps import geodesy
+    from virtualgps.receiver import Georef
+
+    g = Georef(37.4, -122.1, 0.0)
+    enu = np.stack([np.linspace(0, 25_000, 200), np.linspace(0, 5_000, 200), np.zeros(200)], 1)
+    lat, lon, alt = geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(enu, 37.4, -122.1, 0.0))
+    run = SimpleNamespace(
+        setup=SimpleNamespace(valid=np.ones(200, bool), georef=g, antenna_enu_m=enu),
+        view=SimpleNamespace(truth_lat_deg=lat, truth_lon_deg=lon, truth_alt_hae_m=alt,
+                             name="drive"))
+    got = causes.georeference([run], "flat_earth")
+    assert got["per_run"]["drive"]["max_m"] > 10.0
+    assert causes.georeference([run], "wgs84") is None
+
+
+def test_lag_curvature_tells_a_delay_from_a_filter():
+    """A turning, accelerating vehicle: a pure delay of L leaves K ~ L^2 / 2, a first-order
+    filter of tau ~ tau^2 (its corners rounded)."""
+    dt = 0.1
+    t = np.arange(0, 600, dt)
+    speed = 6 + 4 * np.sin(2 * np.pi * t / 60)
+    heading = 0.3 * np.sin(2 * np.pi * t / 45)
+    vel = np.stack([speed * np.sin(heading), speed * np.cos(heading), 0 * t], 1)
+    pos = np.cumsum(vel * dt, axis=0)
+    lag = 2.0
+    delayed = np.stack([np.interp(t - lag, t, pos[:, a]) for a in range(3)], 1)
+    filt = np.zeros_like(pos)
+    filt[0] = pos[0]
+    a = math.exp(-dt / lag)
+    for k in range(1, t.size):
+        filt[k] = a * filt[k - 1] + (1 - a) * pos[k]
+    acc = where.acceleration_enu_mps2(t, vel)
+    ok = t > 20
+    k_delay = where.lag_curvature_s2((delayed - pos)[None], vel, acc, ok)[0]
+    k_filter = where.lag_curvature_s2((filt - pos)[None], vel, acc, ok)[0]
+    assert k_delay == pytest.approx(lag ** 2 / 2, rel=0.15)
+    assert k_filter == pytest.approx(lag ** 2, rel=0.15)
+    assert stats  # (scipy is the reference the p-values rely on)

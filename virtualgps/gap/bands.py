@@ -1,0 +1,270 @@
+"""How improbable a real statistic is under the profile's own ensemble: calibrated bands for the
+``where`` table and the gap score, both in units of the seeds' own spread (DESIGN 7.1).
+
+One statistic of one segment gives ``s`` seed values (each a whole-segment statistic of one
+simulated run, so the correlation between epochs is inside them) and one real value. Under the
+null, a real log made by the profile under test, the real value is one more draw of the same
+distribution. On a scale where that distribution is close to normal (the logarithm of
+``x + c`` for positive scales: errors, times, counts, HDOP; the value itself for shares and
+levels) the predictive statistic
+
+    t = (y_real - mean(y)) / (sd(y) * sqrt(1 + 1/s))
+
+follows Student's t with ``s - 1`` degrees of freedom: the prediction interval for one new draw
+of a normal sample (Hahn & Meeker, "Statistical Intervals", 1991, sec. 4.6; Geisser 1993). Its
+two-sided p-value accounts for the finite ensemble: 8 seeds give a wider band than 50, and
+neither flags more than its share under the null. Statistics whose missing value means "longer
+than the segment can show" (a correlation time that never falls to 1/e, a first fix that never
+comes) are judged by rank instead, missing counted as the largest: p = 2 min(k_below + 1,
+k_above + 1) / (s + 1), exact under exchangeability.
+
+Practical floor. Each metric has a difference below which it is no gap whatever the seeds'
+spread (:data:`METRICS`, in the metric's units: 0.01 of fix fraction, 0.1 of HDOP, half a metre
+of CEP): the distance is measured from the edge of that indifference zone around the
+ensemble's centre, so 1.000 against 0.9994 is never a gap.
+
+Many rows. A report tests one statistic per metric, segment, PRN and sky sector: a few hundred
+rows. They are judged together with the Benjamini-Hochberg rule at :data:`FDR_Q` (false
+discovery rate; under the null every row is null, so it is also the chance that any row of a
+report is flagged). Each row's band is the prediction interval at the level that rule ends up
+using (``alpha_row``; Bonferroni's ``q / m`` when no row is flagged), widened by the floor, so a
+row is ``outside`` exactly when its value leaves its band.
+
+Score. For fitting and ranking effects each metric's disagreement is ``z``, the normal quantile
+of its two-sided predictive p-value (0 inside the floor, :data:`Z_CAP` at most), and its
+distance ``max(0, z - DEAD_ZONE_Z)``: under the null a metric's distance averages about 0.1, and
+a metric the seeds cannot tell apart from the real log adds nothing, so no effect buys a lower
+score by moving a metric within the seeds' own scatter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special
+
+FDR_Q = 0.05  # false-discovery rate of a report's located gaps
+Z_CAP = 8.0  # a p-value of ~1e-15: beyond it nothing is more certain
+DEAD_ZONE_Z = 1.0  # score distance: z beyond one predictive standard deviation
+D_CAP = 5.0  # one metric's distance at most (a metric shown by the real log, by no seed)
+MIN_SEEDS = 3  # seeds with a value a statistic needs before it is judged
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """How a metric is judged.
+
+    kind : "log" (positive scale: judged on ln(x + c)) or "lin" (share or level: on x)
+    c : the log offset, in the metric's units (keeps small values from dominating)
+    floor : practical floor, the metric's units: smaller differences are no gap
+    rel_floor : the floor as a share of the ensemble's centre, where larger
+    nan_high : a missing seed value means "longer than the segment shows" (rank judged)
+    score : part of the gap score (else located only)
+    unit : for people
+    """
+
+    kind: str
+    c: float = 0.0
+    floor: float = 0.0
+    rel_floor: float = 0.0
+    nan_high: bool = False
+    score: bool = True
+    unit: str = ""
+
+
+# Floors: a printed digit or two, or what a user would call the same receiver. Positions print
+# to 0.0001' (0.19 m of latitude) in MTK logs; GSV SNR in whole dB-Hz; HDOP to 0.01-0.1.
+METRICS: dict[str, MetricSpec] = {
+    "cep50_m": MetricSpec("log", 0.5, 0.5, 0.05, unit="m"),
+    "r95_m": MetricSpec("log", 0.5, 1.0, 0.05, unit="m"),
+    "up_p68_m": MetricSpec("log", 0.5, 0.5, 0.05, unit="m"),
+    "bias_m": MetricSpec("log", 0.5, 0.5, 0.05, score=False, unit="m"),
+    "autocorr_s": MetricSpec("log", 2.0, 2.0, 0.05, nan_high=True, unit="s"),
+    "error_step_m": MetricSpec("log", 0.1, 0.05, 0.05, unit="m"),
+    "lag_s": MetricSpec("lin", floor=0.1, unit="s"),
+    "lag_curv_s2": MetricSpec("lin", floor=0.5, unit="s²"),
+    "frozen_fraction": MetricSpec("lin", floor=0.02),
+    "sats_used_mean": MetricSpec("log", 0.5, 0.5, 0.0, unit="satellites"),
+    "used_changes_per_min": MetricSpec("log", 0.5, 0.1, 0.05, unit="/min"),
+    "tracked_agreement": MetricSpec("lin", floor=0.05),
+    "tracked_share": MetricSpec("lin", floor=0.03),
+    "cn0_median_dbhz": MetricSpec("lin", floor=1.0, unit="dB-Hz"),
+    "used_el_p05_deg": MetricSpec("lin", floor=1.0, unit="°"),
+    "hdop_median": MetricSpec("log", 0.2, 0.1, 0.0),
+    "fix_fraction": MetricSpec("lin", floor=0.01),
+    "ttff_s": MetricSpec("log", 5.0, 2.0, 0.05, nan_high=True, unit="s"),
+    "dgps_fraction": MetricSpec("lin", floor=0.02),
+    "eq4_deg": MetricSpec("log", 1e-6, 5e-6, 0.05, score=False, unit="°"),
+}
+SCORE_METRICS = tuple(m for m, s in METRICS.items() if s.score)
+
+
+def _g(spec: MetricSpec, x: np.ndarray | float) -> np.ndarray:
+    """The judging scale: ln(max(x, 0) + c) for log metrics, x for linear ones."""
+    x = np.asarray(x, dtype=float)
+    return np.log(np.maximum(x, 0.0) + spec.c) if spec.kind == "log" else x
+
+
+def _g_inv(spec: MetricSpec, y: np.ndarray | float) -> np.ndarray:
+    y = np.asarray(y, dtype=float)
+    return np.exp(y) - spec.c if spec.kind == "log" else y
+
+
+@dataclass(frozen=True)
+class Judged:
+    """A real value against its ensemble.
+
+    p : two-sided p-value (NaN: too few seeds with a value)
+    z : signed normal-equivalent (+: real above the ensemble); 0 inside the floor
+    centre : the ensemble's centre, metric units (its mean on the judging scale, or the median
+        for rank-judged metrics); floor : the practical floor used, metric units
+    n : seeds with a value
+    """
+
+    p: float
+    z: float
+    centre: float
+    floor: float
+    n: int
+    rank: bool
+
+
+def _z_of_p(p: float, sign: float) -> float:
+    if not math.isfinite(p):
+        return math.nan
+    if p >= 1.0:
+        return 0.0
+    return float(sign * min(Z_CAP, -special.ndtri(max(p, 1e-300) / 2.0)))
+
+
+def judge(metric: str, real: float, sims: Sequence[float] | np.ndarray) -> Judged:
+    """Judge one real statistic against the seeds' values of it (see the module docstring).
+
+    Parameters
+    ----------
+    metric : a name of :data:`METRICS`
+    real : the real log's value (finite)
+    sims : (s,) the seeds' values (NaN: no value; for ``nan_high`` metrics: longer than shown)
+
+    Returns
+    -------
+    Judged
+    """
+    spec = METRICS[metric]
+    y = np.asarray(sims, dtype=float).ravel()
+    fin = y[np.isfinite(y)]
+    s = y.size
+    if spec.nan_high and fin.size < s:
+        yy = np.where(np.isfinite(y), y, np.inf)
+        centre = float(np.median(yy))
+        floor = max(spec.floor, spec.rel_floor * abs(centre)) if math.isfinite(centre) \
+            else spec.floor
+        if math.isfinite(centre) and abs(real - centre) <= floor:
+            return Judged(1.0, 0.0, centre, floor, s, True)
+        below, above = int(np.sum(yy < real)), int(np.sum(yy > real))
+        p = min(1.0, 2.0 * (min(below, above) + 1) / (s + 1))
+        return Judged(p, _z_of_p(p, 1.0 if real > centre else -1.0), centre, floor, s, True)
+    if fin.size < MIN_SEEDS:
+        return Judged(math.nan, math.nan, math.nan, spec.floor, int(fin.size), False)
+    g = _g(spec, fin)
+    m, sd = float(np.mean(g)), float(np.std(g, ddof=1))
+    centre = float(_g_inv(spec, m))
+    floor = max(spec.floor, spec.rel_floor * abs(centre))
+    if abs(real - centre) <= floor:
+        return Judged(1.0, 0.0, centre, floor, int(fin.size), False)
+    sign = 1.0 if real > centre else -1.0
+    edge = float(_g(spec, centre + sign * floor))
+    d = abs(float(_g(spec, real)) - edge)
+    scale = sd * math.sqrt(1.0 + 1.0 / fin.size)
+    if scale <= 0.0:
+        p = 0.0 if d > 0 else 1.0
+    else:
+        p = float(2.0 * special.stdtr(fin.size - 1, -d / scale))
+    return Judged(p, _z_of_p(p, sign), centre, floor, int(fin.size), False)
+
+
+def band(metric: str, sims: Sequence[float] | np.ndarray, alpha: float) -> tuple[float, float]:
+    """The range of real values not flagged at two-sided level ``alpha``: the prediction
+    interval of one more draw (or the rank interval for rank-judged metrics), widened by the
+    practical floor. (-inf, inf) when the ensemble cannot flag at that level.
+
+    sims : (s,) the seeds' values; returns (lo, hi) in the metric's units
+    """
+    spec = METRICS[metric]
+    y = np.asarray(sims, dtype=float).ravel()
+    fin = y[np.isfinite(y)]
+    s = y.size
+    if spec.nan_high and fin.size < s:
+        yy = np.sort(np.where(np.isfinite(y), y, np.inf))
+        k = int(math.floor(alpha / 2.0 * (s + 1)))
+        if k < 1:
+            return -math.inf, math.inf
+        centre = float(np.median(yy))
+        floor = max(spec.floor, spec.rel_floor * abs(centre)) if math.isfinite(centre) \
+            else spec.floor
+        lo, hi = float(yy[k - 1]), float(yy[s - k])
+        if math.isfinite(centre):
+            lo, hi = min(lo, centre - floor), max(hi, centre + floor)
+        return lo, hi
+    if fin.size < MIN_SEEDS:
+        return -math.inf, math.inf
+    g = _g(spec, fin)
+    m, sd = float(np.mean(g)), float(np.std(g, ddof=1))
+    centre = float(_g_inv(spec, m))
+    floor = max(spec.floor, spec.rel_floor * abs(centre))
+    half = float(special.stdtrit(fin.size - 1, 1.0 - alpha / 2.0)) * sd * math.sqrt(
+        1.0 + 1.0 / fin.size)
+    hi = float(_g_inv(spec, _g(spec, centre + floor) + half))
+    lo_edge = centre - floor
+    lo = float(_g_inv(spec, _g(spec, lo_edge) - half)) if (
+        spec.kind != "log" or lo_edge > 0) else -math.inf
+    if spec.kind == "log" and lo_edge > 0 and lo < 0:
+        lo = 0.0
+    return lo, hi
+
+
+def bh_alpha(p_values: Sequence[float] | np.ndarray, q: float = FDR_Q) -> float:
+    """The per-row level of the Benjamini-Hochberg rule at false-discovery rate ``q``: the
+    largest p_(k) threshold q k / m that p_(k) meets, else q / m (no row flagged).
+
+    p_values : (m,) NaN left out; returns the level (q with no p-value at all)
+    """
+    p = np.sort(np.asarray(p_values, dtype=float))
+    p = p[np.isfinite(p)]
+    m = p.size
+    if m == 0:
+        return q
+    k = np.flatnonzero(p <= q * np.arange(1, m + 1) / m)
+    return float(q * (k[-1] + 1) / m) if k.size else q / m
+
+
+def distance(z: float) -> float:
+    """One metric's score distance from its signed z: max(0, |z| - DEAD_ZONE_Z), at most
+    D_CAP; NaN stays NaN."""
+    if not math.isfinite(z):
+        return math.nan
+    return float(min(D_CAP, max(0.0, abs(z) - DEAD_ZONE_Z)))
+
+
+def band_description(n_rows: int, seeds: int, alpha_row: float) -> dict:
+    """``report.json``'s ``band``: how the located gaps were judged."""
+    return {
+        "method": "predictive",
+        "statistic": "each row's real value against one more draw of the seeds' values of the "
+                     "same statistic over the same epochs: Student's t prediction interval "
+                     "with s - 1 degrees of freedom on ln(x + c) for scales and x for shares "
+                     "and levels; rank among the seeds where a seed's value is 'longer than "
+                     "the segment shows' (autocorr_s, ttff_s)",
+        "seeds": seeds,
+        "multiplicity": f"Benjamini-Hochberg false-discovery rate {FDR_Q:g} over the {n_rows} "
+                        "rows (segments holding the same epochs merged first)",
+        "fdr_q": FDR_Q,
+        "alpha_row": alpha_row,
+        "floors": {m: {"floor": s.floor, "relative": s.rel_floor, "unit": s.unit}
+                   for m, s in METRICS.items()},
+        "resolution": "simulated positions, HDOP and altitude rounded to the digits the real "
+                      "log prints; SNR compared in whole dB-Hz",
+    }

@@ -1,0 +1,170 @@
+"""Differences between a real log and its simulation that are not receiver effects (DESIGN 7.2):
+named as such and measured, so that no effect of section 6 absorbs them.
+
+- ``georeference_model``: a profile that converts scene metres to degrees by the paper's
+  flat-earth rule misplaces the simulated antenna by a distance that grows with the run's
+  distance from the scene origin (metres at a few kilometres, tens of metres at 25 km). It is
+  computed exactly along each run's truth.
+- ``truth_offset``: the truth itself sits off the antenna (a map-picked point, a lever arm, a
+  datum): a constant error that time blocks separated by the error's correlation time all
+  share, while a receiver's slow error changes direction from block to block. Tested per run
+  with Hotelling's T^2 on the blocks' mean errors (self-normalised: it needs no error model), at
+  :data:`OFFSET_P`; where it holds and exceeds :data:`OFFSET_MIN_M`, the truth is moved by the
+  estimate before anything else is judged.
+- ``time_offset``: a log-vs-truth clock offset moves every fix along the track by speed x
+  offset. Beyond the ingest's threshold it is removed there; below it, it is measured per block
+  (with an interval) and reported: an output latency looks exactly the same in positions, so
+  when ``latency`` is added the report says that a clock offset of the same size would too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy import special
+
+from virtualgps import geodesy
+from virtualgps.gap.runs import Run
+from virtualgps.gap.where import MOVING_MPS, errors_enu, lag_s
+
+OFFSET_P = 0.01  # a truth offset is named at this level (it moves the truth for the rest)
+OFFSET_MIN_M = 1.0  # and only when larger than this
+MIN_OFFSET_BLOCKS = 4  # Hotelling's T^2 in 2 dimensions with n - 2 >= 2 degrees of freedom
+GEOREF_MIN_M = 0.5  # a flat-earth misplacement below this is no cause (the print resolution)
+LAG_MIN_MOVING = 30  # moving epochs a block needs for its lag
+
+
+def _blocks(t: np.ndarray, ok: np.ndarray, length_s: float) -> list[np.ndarray]:
+    """Blocks of ``length_s`` separated by gaps of ``length_s`` over the epochs ``ok``."""
+    tv = t[ok]
+    if tv.size < 2 or not length_s > 0:
+        return []
+    n = int(math.floor((tv[-1] - tv[0] + length_s) / (2.0 * length_s)))
+    return [ok & (t >= tv[0] + 2 * b * length_s) & (t < tv[0] + (2 * b + 1) * length_s)
+            for b in range(n)]
+
+
+def georeference(runs: list[Run], georef_model: str) -> dict | None:
+    """How far the profile's flat-earth conversion puts the simulated antenna from the truth,
+    per run (None for a profile with the exact WGS-84 conversion, or where it stays below
+    GEOREF_MIN_M)."""
+    if georef_model != "flat_earth":
+        return None
+    per_run = {}
+    for r in runs:
+        s, v = r.setup, r.view
+        ok = s.valid
+        if not ok.any():
+            continue
+        g = s.georef
+        lat, lon = geodesy.flat_earth_to_geodetic(s.antenna_enu_m[ok, 0], s.antenna_enu_m[ok, 1],
+                                                  g.lat0_deg, g.lon0_deg)
+        alt = g.alt0_hae_m + s.antenna_enu_m[ok, 2]
+        e = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, alt),
+                                v.truth_lat_deg[ok], v.truth_lon_deg[ok], v.truth_alt_hae_m[ok])
+        d = np.hypot(e[:, 0], e[:, 1])
+        reach = np.hypot(s.antenna_enu_m[ok, 0], s.antenna_enu_m[ok, 1])
+        per_run[v.name] = {"median_m": float(np.median(d)), "max_m": float(np.max(d)),
+                           "up_max_m": float(np.max(np.abs(e[:, 2]))),
+                           "farthest_from_origin_m": float(reach.max())}
+    if not per_run or max(p["max_m"] for p in per_run.values()) < GEOREF_MIN_M:
+        return None
+    worst = max(per_run.values(), key=lambda p: p["max_m"])
+    return {"name": "georeference_model", "kind": "simulation",
+            "what": "the profile converts scene metres to degrees by the paper's flat-earth "
+                    "rule (georef = \"flat_earth\"): along these runs it puts the simulated "
+                    f"antenna up to {worst['max_m']:.1f} m from the truth (median "
+                    f"{worst['median_m']:.1f} m), {worst['up_max_m']:.1f} m in height, "
+                    f"{worst['farthest_from_origin_m'] / 1000:.1f} km from the scene origin",
+            "per_run": per_run}
+
+
+def truth_offset(run: Run, corr_time_s: float, sim_err_enu_m: np.ndarray) -> dict | None:
+    """Test a constant offset between one run's truth and its antenna (see the module
+    docstring): the real errors' block means less the simulated ones' (the median over seeds:
+    what the profile's own model does on that path, such as the paper's flat-earth
+    conversion, is no offset of the truth).
+
+    Parameters
+    ----------
+    run : the run; corr_time_s : its error's correlation time (the blocks' length and gap)
+    sim_err_enu_m : (s, n, 3) the profile's ensemble's errors along the run
+
+    Returns
+    -------
+    {"name": "truth_offset", "run", "east_m", "north_m" (the antenna's offset from the truth,
+    which moving the truth by it removes), "interval_m", "p_value", "blocks", "applied"} where
+    it could be tested, else None
+    """
+    v = run.view
+    if v.reference != "truth":
+        return None
+    e = run.err_real[0]
+    ok = v.valid & np.isfinite(e[:, :2]).all(axis=1)
+    if not math.isfinite(corr_time_s):
+        return None  # correlated over the whole run: no independent blocks to compare
+    length = max(30.0, corr_time_s)
+    bl = [m for m in _blocks(v.t_unix_s, ok, length) if m.sum() >= 10]
+    n = len(bl)
+    if n < MIN_OFFSET_BLOCKS:
+        return None
+    with np.errstate(invalid="ignore"):
+        sim_means = np.array([np.nanmedian(np.nanmean(sim_err_enu_m[:, m, :2], axis=1), axis=0)
+                              for m in bl])
+    means = np.array([e[m, :2].mean(axis=0) for m in bl]) - np.nan_to_num(sim_means)
+    mean = means.mean(axis=0)
+    cov = np.cov(means, rowvar=False)
+    try:
+        t2 = float(n * mean @ np.linalg.solve(cov, mean))
+    except np.linalg.LinAlgError:
+        return None
+    f = (n - 2) / (2.0 * (n - 1)) * t2
+    p = float(special.fdtrc(2, n - 2, f))
+    half = float(special.stdtrit(n - 1, 0.975)) * np.sqrt(np.diag(cov) / n)
+    size = float(np.hypot(*mean))
+    return {"name": "truth_offset", "kind": "truth", "run": v.name,
+            "east_m": float(mean[0]), "north_m": float(mean[1]), "size_m": size,
+            "interval_m": {"east": [float(mean[0] - half[0]), float(mean[0] + half[0])],
+                           "north": [float(mean[1] - half[1]), float(mean[1] + half[1])]},
+            "p_value": p, "blocks": n, "block_s": length,
+            "applied": bool(p < OFFSET_P and size > OFFSET_MIN_M)}
+
+
+def shift_truth(run: Run, east_m: float, north_m: float) -> Run:
+    """The run with its truth moved by (east, north) metres (onto the antenna, for a
+    :func:`truth_offset`) and the real errors taken about the moved truth."""
+    v = run.view
+    lat, lon = geodesy.offset_geodetic_deg(v.truth_lat_deg, v.truth_lon_deg,
+                                           np.nan_to_num(v.truth_alt_hae_m), east_m, north_m)
+    view = replace(v, truth_lat_deg=np.where(v.valid, lat, np.nan),
+                   truth_lon_deg=np.where(v.valid, lon, np.nan))
+    return replace(run, view=view, err_real=errors_enu(view, v.real))
+
+
+def time_offset(run: Run, corr_time_s: float) -> dict | None:
+    """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
+    +-30 s), and the least-squares lag of the fixes behind the truth per block with a 95 %
+    interval over blocks (None where the truth does not move)."""
+    v = run.view
+    info = run.info.get("offset", {})
+    moving = v.valid & (v.speed_mps >= MOVING_MPS)
+    if moving.sum() < LAG_MIN_MOVING:
+        return None
+    length = max(60.0, corr_time_s if math.isfinite(corr_time_s) else 60.0)
+    bl = [m for m in _blocks(v.t_unix_s, moving, length) if m.sum() >= LAG_MIN_MOVING]
+    lags = np.array([lag_s(run.err_real, v.vel_enu_mps, m)[0] for m in bl])
+    lags = lags[np.isfinite(lags)]
+    whole = float(lag_s(run.err_real, v.vel_enu_mps, moving)[0])
+    out = {"name": "time_offset", "kind": "clock", "run": v.name, "lag_s": whole,
+           "blocks": int(lags.size), "interval_s": [math.nan, math.nan],
+           "ingest_best_s": info.get("best_s"), "applied_s": run.info.get("time_offset_s", 0.0),
+           "what": "the fixes lag the truth by this much: a log-vs-truth clock offset and a "
+                   "receiver's output latency move the fixes alike, and positions alone cannot "
+                   "tell them apart"}
+    if lags.size >= 3:
+        half = float(special.stdtrit(lags.size - 1, 0.975)) * float(np.std(lags, ddof=1)) \
+            / math.sqrt(lags.size)
+        out["interval_s"] = [float(lags.mean() - half), float(lags.mean() + half)]
+    return out

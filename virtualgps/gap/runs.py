@@ -1,0 +1,242 @@
+"""The real runs as the diagnosis holds them: each aligned with the simulator (its truth in a
+scene frame, its power-on, the sky along it) and its log over the simulator's satellites, and an
+ensemble read the same way (positions, HDOP and altitude rounded to the digits the log prints).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from virtualgps import geodesy
+from virtualgps.gap.ensemble import Ensemble, Geometry, RunSetup, geometry_job, setup_digest
+from virtualgps.gap.jobs import map_jobs
+from virtualgps.gap.where import (
+    SKY_BIN_AZ_DEG,
+    SKY_BIN_EL_DEG,
+    Obs,
+    RunView,
+    errors_enu,
+    position_quantum_min,
+    printed_step,
+    quantize,
+)
+from virtualgps.profiles import Profile
+from virtualgps.receiver import Georef
+
+SCENE_REACH_M = 5000.0
+
+
+@dataclass
+class Run:
+    """A run as the diagnosis holds it: its setup, its aligned real view, ingest facts."""
+
+    setup: RunSetup
+    view: RunView
+    err_real: np.ndarray  # (1, n, 3)
+    info: dict = field(default_factory=dict)
+
+
+def _real_obs(epochs, prn: np.ndarray) -> Obs:
+    """The real log's epochs as an :class:`Obs` over the simulator's PRN columns."""
+    n, k = len(epochs), prn.size
+    col = {int(p): j for j, p in enumerate(epochs.prn)}
+    tracked = np.zeros((n, k), bool)
+    cn0 = np.full((n, k), np.nan)
+    used = np.zeros((n, k), bool)
+    for j, p in enumerate(prn):
+        c = col.get(int(p))
+        if c is not None:
+            cn0[:, j] = epochs.cn0_dbhz[:, c]
+            tracked[:, j] = np.isfinite(epochs.cn0_dbhz[:, c])
+            used[:, j] = epochs.used[:, c]
+    sep = np.where(np.isfinite(epochs.geoid_sep_m), epochs.geoid_sep_m,
+                   geodesy.geoid_sep_m(np.nan_to_num(epochs.lat_deg),
+                                       np.nan_to_num(epochs.lon_deg)))
+    sats = np.where(epochs.sats_used >= 0, epochs.sats_used, np.nan).astype(float)
+    # An epoch without a fix has no position, whatever it prints (MTK: 8960.0000,N 137.0 m)
+    fix = epochs.quality > 0
+    lat, lon = (np.where(fix, x, np.nan) for x in (epochs.lat_deg, epochs.lon_deg))
+    return Obs(
+        lat_deg=lat[None], lon_deg=lon[None],
+        alt_hae_m=np.where(fix, epochs.alt_msl_m + sep, np.nan)[None],
+        quality=epochs.quality[None].astype(np.int16),
+        hdop=epochs.hdop[None], sats_used=sats[None], speed_mps=epochs.speed_mps[None],
+        tracked=tracked[None], cn0_dbhz=cn0[None], used=used[None],
+    )
+
+
+def sim_obs(ens: Ensemble, view: RunView | None = None) -> Obs:
+    """An ensemble as an :class:`Obs` (positions rounded like the run's real log)."""
+    obs = Obs(
+        lat_deg=ens.lat_deg, lon_deg=ens.lon_deg, alt_hae_m=ens.alt_hae_m,
+        quality=ens.quality.astype(np.int16), hdop=ens.hdop.astype(float),
+        sats_used=ens.used.sum(axis=2).astype(float), speed_mps=ens.speed_mps.astype(float),
+        tracked=np.isfinite(ens.cn0_dbhz), cn0_dbhz=ens.cn0_dbhz.astype(float), used=ens.used,
+    )
+    return obs if view is None else quantize(obs, view.quantum_min, view.hdop_step,
+                                             view.alt_step_m)
+
+
+def prepare_runs(
+    runs: Sequence[Any],
+    scene: Any,
+    scene_path: str | None,
+    tle_path: str,
+    profile: Profile,
+    sky_shift: Callable[[float], float],
+    jobs: int | None = None,
+    dask: str | None = None,
+) -> list[Run]:
+    """Align each real run with the simulator: its setup (truth in a scene frame, power-on),
+    the sky geometry along it, and the real log over the simulator's satellites.
+
+    Parameters
+    ----------
+    runs : :class:`virtualgps.gap.ingest.RealRun` values
+    scene : the loaded scene (None: open sky); scene_path : its folder
+    tle_path : the TLE set; profile : the profile under test (its elevation mask sets which
+        satellites are compared)
+    sky_shift : run start (UTC s) -> the sky-time shift to use (0: the true sky)
+    jobs, dask : where the geometry jobs run (:func:`virtualgps.gap.jobs.map_jobs`)
+
+    Returns
+    -------
+    runs : the prepared runs, in input order
+    """
+    from virtualgps.gap.ingest import truth_positions
+
+    setups, pre = [], []
+    for run in runs:
+        ep = run.epochs
+        t = np.asarray(ep.t_unix_s, dtype=float)
+        georef = None
+        if scene is not None:
+            georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
+        lat, lon, alt, valid = truth_positions(run, t, georef)
+        lat, lon, alt = (np.where(valid, x, np.nan) for x in (lat, lon, alt))
+        if not valid.any():
+            from virtualgps.exceptions import InputFileError
+
+            raise InputFileError(run.path, "no epoch of this log matches its truth in time "
+                                 f"(log {t[0]:.0f}-{t[-1]:.0f} UTC s); check the truth file, "
+                                 "its time zone and its clock")
+        where_scene = scene_path
+        if georef is not None:
+            enu = geodesy.ecef_to_enu(
+                geodesy.geodetic_to_ecef(lat[valid], lon[valid], alt[valid]),
+                georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+            if np.nanmax(np.hypot(enu[:, 0], enu[:, 1])) > SCENE_REACH_M:
+                georef, where_scene = None, None
+        if georef is None:
+            k = np.flatnonzero(valid)[0]
+            georef = Georef(float(lat[k]), float(lon[k]), float(alt[k]))
+        ant = np.zeros((t.size, 3))
+        ant[valid] = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat[valid], lon[valid],
+                                                                  alt[valid]),
+                                         georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
+        vel = np.zeros((t.size, 3))
+        if valid.sum() > 1:
+            k = np.flatnonzero(valid)
+            for a in range(3):
+                vel[k, a] = np.gradient(ant[k, a], t[k])
+            vel[k[1:][np.diff(t[k]) > 5.0]] = 0.0  # (across a gap in the truth: unknown)
+        started = not (ep.quality[0] > 0 and np.isfinite(ep.lat_deg[0]))
+        t_sim, shift = snap_epochs(t), sky_shift(float(t[0]))
+        setups.append(RunSetup(
+            key=run.name, t_unix_s=t_sim, antenna_enu_m=ant, vel_enu_mps=vel, valid=valid,
+            power_on_unix_s=float(t[0]) if started else math.nan, georef=georef,
+            scene_path=where_scene, tle_path=tle_path, sky_shift_s=shift,
+            digest=setup_digest(t_sim, ant, valid, georef, where_scene, tle_path, shift)))
+        pre.append((run, lat, lon, alt))
+    geoms: list[Geometry] = map_jobs(geometry_job, setups, jobs=jobs, dask_address=dask)
+    out = []
+    mask = profile.sky.elevation_mask_deg
+    for setup, geom, (run, lat, lon, alt) in zip(setups, geoms, pre, strict=True):
+        ep = run.epochs
+        real = _real_obs(ep, geom.prn)
+        el = geom.el_deg.astype(float)
+        listed = ep.in_view.any(axis=1) | (ep.sats_in_view >= 0)
+        with np.errstate(invalid="ignore"):
+            above = el >= mask
+        sat_ok = above & listed[:, None] & setup.valid[:, None]
+        silent = _silent_prns(real.tracked[0], el, geom.az_deg.astype(float), sat_ok
+                              ) if run.has_cn0 else np.zeros(
+            geom.prn.size, bool)
+        sat_ok &= ~silent[None, :]
+        reference = "median" if run.truth.kind == "static" else "truth"
+        view = RunView(
+            name=run.name, t_unix_s=setup.t_unix_s, power_on_unix_s=float(setup.t_unix_s[0]),
+            started=bool(np.isfinite(setup.power_on_unix_s)),
+            truth_lat_deg=lat, truth_lon_deg=lon, truth_alt_hae_m=alt, reference=reference,
+            vel_enu_mps=setup.vel_enu_mps, near_building=(geom.crosses_building & above).any(1),
+            prn=geom.prn, az_deg=geom.az_deg.astype(float), el_deg=el, sat_ok=sat_ok,
+            assess={"gsv": bool(run.has_gsv), "cn0": bool(run.has_cn0),
+                    "gsa": bool(run.has_gsa)},
+            real=real, quantum_min=position_quantum_min(real.lat_deg[0], real.lon_deg[0]),
+            hdop_step=printed_step(np.where(ep.quality > 0, ep.hdop, np.nan)),
+            alt_step_m=printed_step(np.where(ep.quality > 0, ep.alt_msl_m, np.nan)),
+        )
+        out.append(Run(setup, view, errors_enu(view, real), {
+            "skipped": dict(run.skipped), "sentences": dict(run.sentences),
+            "time_offset_s": run.time_offset_s, "offset": dict(run.offset_info),
+            "simulated_in": "scene" if setup.scene_path else "open sky",
+            "silent_prns": [int(p) for p in geom.prn[silent]],
+        }))
+    return out
+
+
+# A satellite the real receiver never tracks in a whole run, while at the same epochs it tracks
+# most of the satellites lower in the sky, and over a pass long enough to cross several sky-mask
+# bins (an obstruction the scene lacks would have to be that wide, and spare the lower
+# satellites), is taken as not transmitting (unhealthy, or retired while the TLE set still lists
+# it), not as blocked: it is left out of the tracking comparisons, where it would teach a sky
+# mask to block its path. Over a short pass the two cannot be told apart and it stays compared.
+SILENT_MIN_BINS = 3
+
+
+def _silent_prns(real_tracked: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray,
+                 sat_ok: np.ndarray) -> np.ndarray:
+    """(k,) bool: PRNs never tracked in the run though the real receiver tracks most of the
+    satellites below them at the epochs they are compared, over a pass crossing at least
+    SILENT_MIN_BINS sky-mask bins. real_tracked, el_deg, az_deg, sat_ok : (n, k)."""
+    k = sat_ok.shape[1]
+    out = np.zeros(k, bool)
+    never = sat_ok.any(axis=0) & ~(real_tracked & sat_ok).any(axis=0)
+    el = np.nan_to_num(el_deg, nan=-90.0)
+    for j in np.flatnonzero(never):
+        ep = sat_ok[:, j]
+        lower = sat_ok[ep] & (el[ep] < el[ep, j][:, None])
+        lower[:, j] = False
+        if not lower.any() or (lower & real_tracked[ep]).sum() <= 0.5 * lower.sum():
+            continue
+        bins = {(int(e // SKY_BIN_EL_DEG), int(a % 360.0 // SKY_BIN_AZ_DEG))
+                for e, a in zip(el[ep, j], np.nan_to_num(az_deg[ep, j]), strict=True)}
+        out[j] = len(bins) >= SILENT_MIN_BINS
+    return out
+
+
+def snap_epochs(t_unix_s: np.ndarray) -> np.ndarray:
+    """Epoch times on whole multiples of the log's period where they lie within a quarter
+    period of one (real receivers' time tags jitter by milliseconds; on the grid the
+    receiver's Gauss-Markov recursions take equal steps), else unchanged.
+
+    t_unix_s : (n,) float, UTC seconds, increasing; returns (n,) float
+    """
+    t = np.asarray(t_unix_s, dtype=float)
+    if t.size < 2:
+        return t
+    period = float(np.median(np.diff(t)))
+    if not period > 0:
+        return t
+    rate = 1.0 / period
+    k = np.rint(t * rate)
+    near = np.abs(t - k / rate) <= 0.25 * period
+    return np.where(near, k / rate, t)
+
+
+# --- simulating ---------------------------------------------------------------------------------

@@ -1,0 +1,534 @@
+"""Choosing effects (DESIGN 7.2): fit each candidate's parameters on training units, measure it
+on held-out units, and add the best while it clearly helps.
+
+One selection works on a set of units and their folds. Each round, for every candidate and
+every fold, each grid point is simulated with the fitting seeds over the runs (common random
+numbers: every point runs the same seeds, so the objective is smooth in the parameters); the
+fold's point is the one with the smallest mean gap on the fold's training units (its default
+unless another point is better by more than :data:`FLAT_MIN`); that point is then measured on
+the fold's held-out units with the held-out seeds, never the fitting ones (with common random
+numbers a run's blocks share seeds, and a fit would carry their luck into its held-out blocks).
+
+A candidate is added when its held-out gain is clear (:func:`acceptable`): over the folds it
+changes, larger than twice :data:`MIN_GAIN_ABS` and than :data:`MIN_GAIN_REL` of the gap;
+positive over every fold, with both seed sets; positive in most folds it changes; and without
+any metric's held-out distance rising by more than :data:`WORSEN_MAX` (no effect buys a lower
+total by trading one metric for another).
+Candidates whose held-out gaps differ by less than :data:`TIE_EPS`, or swap places under the
+other seed set, are tied; a tie goes to the candidate with fewer parameters.
+
+The added effect's parameters are then fitted on the selection's fit units with both seed sets
+(:func:`identify`): the grid points whose mean gap lies within the seeds' own noise of the best
+are its interval; a parameter whose interval covers its whole grid is not identifiable (the
+default is kept), and a best point at the edge of its grid extends the grid by one step, or is
+reported as a bound.
+
+Selections are generators: they yield the (table, seed set, runs) they need next, and a driver
+(:func:`drive`) fulfils the requests of every selection in one batch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from virtualgps.gap import effects as fx
+from virtualgps.gap.design import folds as make_folds
+from virtualgps.gap.simulator import FIT, HELD, Simulator
+from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, pooled_tracking_disagreement
+
+FLAT_MIN = 0.02  # gap differences below this: the data cannot tell two points apart
+MIN_GAIN_ABS = 0.05  # an effect is added when it lowers the held-out gap by more than this
+MIN_GAIN_REL = 0.05  # and by more than this share of the gap before it
+WORSEN_MAX = 1.0  # ... and no metric's held-out distance rises by more than this
+TIE_EPS = 0.02  # held-out gaps this close are a tie
+RETRY_BEST = 6  # candidates carried into the next round of the greedy search, at most
+
+Request = list[tuple[dict[str, Any], int, Sequence[int]]]  # (table, seed set, units)
+
+
+@dataclass
+class Tried:
+    """One candidate tried on top of each fold's current profile.
+
+    fold_overrides : the override tables fitted per fold
+    before, after : (F,) held-out gap per fold without and with it (held-out seeds)
+    before_fit, after_fit : the same with the fitting seeds (the ranking's second opinion)
+    """
+
+    cand: fx.Candidate
+    fold_overrides: list[dict]
+    fold_points: list[dict]
+    before: np.ndarray
+    after: np.ndarray
+    before_fit: np.ndarray
+    after_fit: np.ndarray
+    metrics_before: dict[str, float]
+    metrics_after: dict[str, float]
+    tied_with: list[str] = field(default_factory=list)
+
+    @property
+    def gap_after(self) -> float:
+        return _mean(self.after)
+
+    @property
+    def gap_after_fit(self) -> float:
+        return _mean(self.after_fit)
+
+
+def _mean(x: np.ndarray) -> float:
+    x = np.asarray(x, dtype=float)
+    return float(np.mean(x[np.isfinite(x)])) if np.isfinite(x).any() else math.nan
+
+
+def fit_index(objective: np.ndarray, default: int, flat: float = FLAT_MIN) -> int:
+    """The point with the smallest objective, unless the default is within ``flat`` of it (no
+    evidence keeps the prior). objective : (points,), NaN left out."""
+    if not np.isfinite(objective).any():
+        return default
+    best = int(np.nanargmin(objective))
+    if np.isfinite(objective[default]) and objective[default] - objective[best] <= flat:
+        return default
+    return best
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A candidate fitted on a selection's fit units.
+
+    overrides : the chosen point's tables; point : its axis values
+    intervals : per axis, the values of the grid points within the noise of the best ([lo, hi]
+        for numbers, the values for choices)
+    identifiable : per axis, whether that interval leaves some grid values out
+    grid_edge : per axis fitted at an end of its grid: "upper" or "lower"
+    bounds : per axis still at an end after extending: ">= v" or "<= v"
+    flat : no point is better than another beyond the noise
+    noise : the seeds' noise of the objective used
+    """
+
+    overrides: dict
+    point: dict
+    intervals: dict = field(default_factory=dict)
+    identifiable: dict = field(default_factory=dict)
+    grid_edge: dict = field(default_factory=dict)
+    bounds: dict = field(default_factory=dict)
+    flat: bool = False
+    noise: float = 0.0
+
+    def public(self) -> dict:
+        """The report's ``fit`` entry."""
+        return {"intervals": self.intervals, "identifiable": self.identifiable,
+                "grid_edge": self.grid_edge, "bounds": self.bounds, "flat": self.flat,
+                "noise": self.noise}
+
+
+def identify(cand: fx.Candidate, j_fit: np.ndarray, j_held: np.ndarray
+             ) -> tuple[int, dict[str, Any]]:
+    """Which grid point to keep and what the data say of each parameter.
+
+    The objective is the mean of the two seed sets' gaps; its noise is twice the spread over
+    the grid of half their difference (the seeds' luck, which differs between the sets). The
+    points within that noise (at least FLAT_MIN) of the best are near-optimal: a parameter is
+    identifiable when they leave some of its grid values out. Each parameter is kept at the
+    middle of its near-optimal values, or at its default when not identifiable, where that
+    point is near-optimal too (else the best point); a flat objective keeps the default.
+
+    j_fit, j_held : (points,) mean gap on the fit units with each seed set
+    Returns the point's index and {"intervals", "identifiable", "grid_edge", "flat", "noise"}
+    """
+    j = np.nanmean(np.stack([j_fit, j_held]), axis=0)
+    d = (j_fit - j_held) / 2.0
+    d = d[np.isfinite(d)]
+    noise = float(2.0 * np.std(d)) if d.size >= 3 else 0.0
+    flat = max(FLAT_MIN, noise)
+    points = cand.points
+    default = cand.default_index
+    if not np.isfinite(j).any():
+        return default, {"intervals": {}, "identifiable": {}, "grid_edge": {}, "flat": True,
+                         "noise": noise}
+    best = int(np.nanargmin(j))
+    near = np.isfinite(j) & (j <= j[best] + flat)
+    info: dict[str, Any] = {"intervals": {}, "identifiable": {}, "grid_edge": {},
+                            "flat": bool(near.all()), "noise": noise}
+    for axis in cand.axes:
+        vals = {p[axis.name] for p, n in zip(points, near, strict=True) if n}
+        info["identifiable"][axis.name] = vals != set(axis.values)
+    # Each parameter at the middle of its near-optimal values (the best single point chases
+    # the seeds' noise along a flat valley), and each the data cannot pin down at its default
+    # (no evidence keeps the prior; with none at all, the default point itself); the best
+    # point where that combination is not near-optimal.
+    keep = dict(points[best])
+    for a in cand.axes:
+        if not info["identifiable"].get(a.name, True):
+            keep[a.name] = points[default][a.name]
+        else:
+            vals = [v for v in a.values
+                    if any(n and p[a.name] == v for p, n in zip(points, near, strict=True))]
+            keep[a.name] = vals[(len(vals) - 1) // 2]
+    idx = default if info["flat"] else next(
+        (k for k, p in enumerate(points) if p == keep and near[k]), best)
+    for axis in cand.axes:
+        if len(axis.values) < 2:
+            continue
+        vals = [p[axis.name] for p, n in zip(points, near, strict=True) if n]
+        numeric = all(isinstance(v, int | float) and not isinstance(v, bool)
+                      for v in axis.values)
+        info["intervals"][axis.name] = ([min(vals), max(vals)] if numeric
+                                        else sorted(set(vals), key=str))
+        ident = info["identifiable"][axis.name]
+        v = points[idx][axis.name]
+        if ident and numeric and v == max(axis.values) and min(vals) > min(axis.values):
+            info["grid_edge"][axis.name] = "upper"
+        elif ident and numeric and v == min(axis.values) and max(vals) < max(axis.values):
+            info["grid_edge"][axis.name] = "lower"
+    return idx, info
+
+
+def _options(sim: Simulator, table: dict, cand: fx.Candidate, train: Sequence[int]
+             ) -> tuple[list[dict], int]:
+    """A candidate's override tables on top of ``table`` and the default's index: its grid,
+    or for a learned sky mask the masks learned from the training units at each level (the
+    table's sky bins must have been requested with the fitting seeds)."""
+    if not cand.learned:
+        return cand.grid, cand.default_index
+    counts = sim.sky_bins(table, FIT, train)
+    masks = [fx.learned_sky_mask(counts, lv, SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, cand.learned_atten)
+             for lv in cand.learned]
+    masks = [m for m in masks if m is not None]
+    return (masks, len(masks) // 2) if masks else ([{}], 0)
+
+
+def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[dict],
+                   folds: list[list[int]], train: list[list[int]]
+                   ) -> Generator[Request, None, list[Tried]]:
+    """Fit every candidate per fold on the fold's training units and measure it on its
+    held-out units (a generator: see the module docstring)."""
+    n_f = len(folds)
+    if any(c.learned for c in cands):
+        yield [(fold_tables[f], FIT, train[f]) for f in range(n_f)]
+    options = {}
+    req: Request = []
+    for ci, c in enumerate(cands):
+        for f in range(n_f):
+            opts, default = _options(sim, fold_tables[f], c, train[f])
+            options[ci, f] = (opts, default)
+            req += [(fx.apply(fold_tables[f], o), FIT, train[f]) for o in opts]
+    yield req
+    chosen: dict[tuple[int, int], dict] = {}
+    points: dict[tuple[int, int], dict] = {}
+    req = []
+    for (ci, f), (opts, default) in options.items():
+        j = np.array([sim.gap(fx.apply(fold_tables[f], o), FIT, train[f]) for o in opts])
+        k = fit_index(j, default)
+        chosen[ci, f] = opts[k]
+        points[ci, f] = cands[ci].points[k] if not cands[ci].learned else {}
+        held = folds[f]
+        for t in (fx.apply(fold_tables[f], chosen[ci, f]), fold_tables[f]):
+            req += [(t, HELD, held), (t, FIT, held)]
+    yield req
+    out = []
+    for ci, c in enumerate(cands):
+        ov = [chosen[ci, f] for f in range(n_f)]
+        with_t = [fx.apply(fold_tables[f], ov[f]) for f in range(n_f)]
+
+        def per_fold(tables: list[dict], seed_set: int) -> np.ndarray:
+            return np.array([sim.gap(tables[f], seed_set, folds[f]) for f in range(n_f)])
+
+        out.append(Tried(
+            c, ov, [points[ci, f] for f in range(n_f)], per_fold(fold_tables, HELD),
+            per_fold(with_t, HELD),
+            per_fold(fold_tables, FIT), per_fold(with_t, FIT),
+            _mean_parts([sim.parts(fold_tables[f], HELD, folds[f]) for f in range(n_f)]),
+            _mean_parts([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)])))
+    return out
+
+
+def _mean_parts(parts: list[dict[str, float]]) -> dict[str, float]:
+    """Mean distance per metric over the folds that assess it."""
+    names = sorted({m for p in parts for m in p})
+    return {m: float(np.mean([p[m] for p in parts if m in p])) for m in names}
+
+
+def mark_ties(tried: list[Tried]) -> list[list[Tried]]:
+    """Sort by held-out gap and group candidates that are tied: held-out gaps within TIE_EPS,
+    or in the other order under the fitting seeds. Returns the tie groups, best first."""
+    tried.sort(key=lambda t: t.gap_after if math.isfinite(t.gap_after) else math.inf)
+    groups: list[list[Tried]] = []
+    for t in tried:
+        if groups and math.isfinite(t.gap_after):
+            prev = groups[-1][-1]
+            close = t.gap_after - prev.gap_after < TIE_EPS
+            swapped = (math.isfinite(t.gap_after_fit) and math.isfinite(prev.gap_after_fit)
+                       and t.gap_after_fit < prev.gap_after_fit)
+            if close or swapped:
+                groups[-1].append(t)
+                continue
+        groups.append([t])
+    for g in groups:
+        for t in g:
+            t.tied_with = [o.cand.name for o in g if o is not t]
+    return groups
+
+
+def acceptable(tr: Tried, current: float) -> tuple[bool, str]:
+    """Whether a candidate clearly lowers the held-out gap (see the module docstring), and if
+    not, why. The gain is judged over the held-out folds it changes (a start-up shows in the
+    one block that holds the power-on; averaged over every fold it would be diluted away),
+    and must be positive over all of them, with either seed set."""
+    per = tr.before - tr.after
+    changed = np.isfinite(per) & (np.abs(per) > FLAT_MIN)
+    gain = current - tr.gap_after
+    local = float(np.mean(per[changed])) if changed.any() else 0.0
+    need = max(2 * MIN_GAIN_ABS, MIN_GAIN_REL * current)
+    if not (local > need and gain > 0):
+        return False, (f"held-out gain {gain:.3f} ({local:.3f} over the {int(changed.sum())} "
+                       f"held-out group(s) it changes) below {need:.3f}")
+    gain_fit = _mean(tr.before_fit) - tr.gap_after_fit
+    if not gain_fit > 0:
+        return False, "the gain is not repeated with the other seed set"
+    if not np.sum(per[changed] > 0) > 0.5 * changed.sum():
+        return False, "it helps fewer than half of the held-out units it changes"
+    worse = {m: tr.metrics_after[m] - tr.metrics_before.get(m, 0.0) for m in tr.metrics_after}
+    worse = {m: d for m, d in worse.items() if d > WORSEN_MAX}
+    if worse:
+        return False, "it worsens " + ", ".join(f"{m} by {d:.2f}" for m, d in worse.items())
+    return True, ""
+
+
+def fit_final(sim: Simulator, table: dict, cand: fx.Candidate, units: Sequence[int]
+              ) -> Generator[Request, None, Fitted]:
+    """Fit a candidate on top of ``table`` over ``units`` with both seed sets, extending an
+    axis once where the best point lies at its edge (a generator)."""
+    if cand.learned:
+        yield [(table, FIT, units)]
+        opts, default = _options(sim, table, cand, units)
+        yield [(fx.apply(table, o), FIT, units) for o in opts]
+        j = np.array([sim.gap(fx.apply(table, o), FIT, units) for o in opts])
+        k = fit_index(j, default)
+        return Fitted(opts[k], {"level": cand.learned[min(k, len(cand.learned) - 1)]})
+    extended: set[str] = set()
+    while True:
+        grid = cand.grid
+        yield [(fx.apply(table, o), s, units) for o in grid for s in (FIT, HELD)]
+        jf = np.array([sim.gap(fx.apply(table, o), FIT, units) for o in grid])
+        jh = np.array([sim.gap(fx.apply(table, o), HELD, units) for o in grid])
+        idx, info = identify(cand, jf, jh)
+        grow = next(((a, side) for a, side in info["grid_edge"].items() if a not in extended),
+                    None)
+        if grow is None:
+            break
+        extended.add(grow[0])
+        bigger = cand.extended(grow[0], grow[1] == "upper")
+        if bigger is None:
+            continue
+        cand = bigger
+    point = cand.points[idx]
+    bounds = {a: (">= " if side == "upper" else "<= ") + f"{point[a]:g}"
+              for a, side in info["grid_edge"].items()}
+    return Fitted(cand.grid[idx], point, info["intervals"], info["identifiable"],
+                  info["grid_edge"], bounds, info["flat"], info["noise"])
+
+
+@dataclass
+class Selection:
+    """What one selection found.
+
+    steps : accepted effects in the order added (report entries)
+    ranking : every candidate of the first round, best held-out gap first (report entries)
+    skipped : {effect: why it was not tried}
+    baseline, final : held-out gap (held-out seeds) of the base and of the final fold profiles
+    final_table : the profile with the added effects fitted on the fit units
+    fold_tables : each fold's profile; folds : the held-out groups
+    rounds : per round, the gap before it and each candidate's held-out gap and verdict
+    tracking : per-PRN tracking disagreement on held-out units, before and after
+    """
+
+    steps: list[dict]
+    ranking: list[dict]
+    skipped: dict[str, str]
+    baseline: float
+    final: float
+    final_table: dict
+    fold_tables: list[dict]
+    folds: list[list[int]]
+    rounds: list[dict] = field(default_factory=list)
+    tracking: dict = field(default_factory=dict)
+
+
+def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
+           candidates: Callable[[dict], tuple[list[fx.Candidate], dict[str, str]]],
+           k_folds: int, full: bool = False) -> Generator[Request, None, Selection]:
+    """Greedy selection of effects on ``units`` (a generator; see the module docstring).
+
+    Parameters
+    ----------
+    sim : the simulator; base : the profile table under test
+    units : the units cross-validated over; fit_units : what added effects are fitted on
+    candidates : profile table -> (candidates, skipped)
+    k_folds : folds at most
+    full : also measure each added effect's leave-one-out contribution and the per-PRN
+        tracking disagreement (the reported selection)
+    """
+    folds = make_folds(units, k_folds)
+    train = [[u for u in units if u not in f] for f in folds]
+    n_f = len(folds)
+    fold_tables = [base] * n_f
+    table = base
+    yield [(base, HELD, units)]
+    baseline = _mean(np.array([sim.gap(base, HELD, f) for f in folds]))
+    current = baseline
+    cands, skipped = candidates(base)
+    steps: list[dict] = []
+    ranking: list[dict] = []
+    rounds: list[dict] = []
+    first = True
+    while cands:
+        tried = yield from try_candidates(sim, cands, fold_tables, folds, train)
+        groups = mark_ties(tried)
+        verdicts = {id(t): acceptable(t, current) for t in tried}
+        rounds.append({"gap_before": current, "tried": [
+            {"name": t.cand.name, "gap_after": t.gap_after,
+             "gap_after_fit_seeds": t.gap_after_fit, "params": t.cand.params_of(
+                 t.fold_overrides[0]), "verdict": verdicts[id(t)][1] or "acceptable"}
+            for t in tried]})
+        if first:
+            ranking = [entry(t, sim, folds, None) | {"accepted_test": verdicts[id(t)][1]}
+                       for t in tried]
+            first = False
+        best, fitted = None, None
+        for g in groups:
+            ok = sorted((t for t in g if verdicts[id(t)][0]),
+                        key=lambda t: (t.cand.complexity, (t.gap_after + t.gap_after_fit)))
+            for t in ok:
+                f = yield from fit_final(sim, table, t.cand, fit_units)
+                if fx.apply(table, f.overrides) != table:
+                    best, fitted = t, f
+                    break
+            if best is not None:
+                break
+        if best is None:
+            break
+        table = fx.apply(table, fitted.overrides)
+        # Later rounds judge candidates on top of the effects added so far, as fitted on the
+        # selection's fit units (the folds share them: their held-out units saw that fit, so
+        # a later round's held-out gain is a little optimistic; the outer test is not).
+        fold_tables = [table] * n_f
+        steps.append(entry(best, sim, folds, fitted) | {"gap_before": current,
+                                                        "_fitted": fitted.overrides})
+        # Later rounds refit the candidates that lowered the held-out gap in this one, around
+        # the points their folds chose (an effect that shows in one held-out unit, a start-up,
+        # gains little on average yet may be real), and any the added effect makes applicable.
+        cands = [t.cand.near(t.fold_points) for t in tried
+                 if t is not best and t.gap_after < current - FLAT_MIN][:RETRY_BEST]
+        yield [(table, HELD, units)]
+        # the next round's gains are measured from the profile it starts from
+        current = _mean(np.array([sim.gap(table, HELD, f) for f in folds]))
+        more, _ = candidates(table)
+        known = {c.name for c in cands} | {s["name"] for s in steps}
+        cands += [c for c in more if c.name not in known]
+    sel = Selection(steps, ranking, skipped, baseline, current, table, fold_tables, folds,
+                    rounds)
+    if full:
+        yield from _contributions(sim, base, sel)
+        yield [(t, HELD, f) for t, f in zip([base] * n_f + fold_tables,
+                                                         folds + folds, strict=True)]
+        before = pooled_tracking_disagreement(
+            [c for f in folds for c in sim.prn_counts(base, HELD, f)])
+        after = pooled_tracking_disagreement(
+            [c for f, t in zip(folds, fold_tables, strict=True)
+             for c in sim.prn_counts(t, HELD, f)])
+        sel.tracking = {"baseline": before, "final": after,
+                        "shrink": 1.0 - after / before if before > 0 else math.nan}
+    return sel
+
+
+def entry(tr: Tried, sim: Simulator, folds: list[list[int]], fitted: Fitted | None) -> dict:
+    """A report entry for a tried candidate."""
+    c = tr.cand
+    worse = {m: round(tr.metrics_after[m] - tr.metrics_before.get(m, 0.0), 3)
+             for m in tr.metrics_after
+             if tr.metrics_after[m] - tr.metrics_before.get(m, 0.0) > FLAT_MIN}
+    out = {
+        "name": c.name,
+        "params": c.params_of(fitted.overrides if fitted is not None else tr.fold_overrides[0]),
+        "gap_before": _mean(tr.before),
+        "gap_after": tr.gap_after,
+        "gap_after_fit_seeds": tr.gap_after_fit,
+        "gap_after_spread": _spread(tr.after),
+        "heldout": "; ".join(", ".join(sim.units[u].label for u in f) for f in folds),
+        "fold_params": [c.params_of(o) for o in tr.fold_overrides],
+        "metrics_before": tr.metrics_before,
+        "metrics_after": tr.metrics_after,
+        "worsens": worse,
+        "tied_with": list(tr.tied_with),
+        "parameters": c.complexity,
+        "_overrides": list(tr.fold_overrides),
+    }
+    if fitted is not None:
+        out["fit"] = fitted.public()
+    return out
+
+
+def _spread(x: np.ndarray) -> list[float]:
+    v = x[np.isfinite(x)]
+    return [float(v.min()), float(v.max())] if v.size else [math.nan, math.nan]
+
+
+def _contributions(sim: Simulator, base: dict, sel: Selection) -> Generator[Request, None, None]:
+    """Each added effect's leave-one-out contribution to the held-out gap: the held-out gap
+    with every added effect but it (as fitted) minus the gap with all."""
+    steps = sel.steps
+    if len(steps) < 2:
+        for s in steps:
+            s["contribution"] = s["gap_before"] - s["gap_after"]
+        return
+    without = []
+    for s in steps:
+        t = base
+        for other in steps:
+            if other is not s:
+                t = fx.apply(t, other["_fitted"])
+        without.append([t] * len(sel.folds))
+    yield [(t, HELD, sel.folds[f]) for per in without for f, t in enumerate(per)]
+    full = _mean(np.array([sim.gap(t, HELD, f) for t, f in zip(sel.fold_tables, sel.folds,
+                                                                strict=True)]))
+    for s, per in zip(steps, without, strict=True):
+        held = _mean(np.array([sim.gap(t, HELD, f) for t, f in zip(per, sel.folds,
+                                                                    strict=True)]))
+        s["contribution"] = held - full
+
+
+def drive(sim: Simulator, gens: dict[str, Generator],
+          progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run selections side by side: each step, every pending request of every selection is
+    simulated in one batch (:meth:`Simulator.request`), then each selection goes on.
+
+    Returns {name: the generator's return value}
+    """
+    results: dict[str, Any] = {}
+    pending: dict[str, Request] = {}
+    for name, g in gens.items():
+        try:
+            pending[name] = next(g)
+        except StopIteration as stop:
+            results[name] = stop.value
+    step = 0
+    while pending:
+        step += 1
+        n0 = sim.n_sims
+        sim.request([item for req in pending.values() for item in req])
+        if progress and sim.n_sims > n0:
+            progress(f"choosing effects: step {step}, {len(pending)} selection(s) under way, "
+                     f"{sim.n_sims:,} epochs simulated")
+        nxt: dict[str, Request] = {}
+        for name in pending:
+            try:
+                nxt[name] = gens[name].send(None)
+            except StopIteration as stop:
+                results[name] = stop.value
+        pending = nxt
+    return results

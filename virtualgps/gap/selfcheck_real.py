@@ -1,0 +1,228 @@
+"""Real-log bases for the self-check (DESIGN 7.4): a real receiver's log with a known effect
+injected into it, diagnosed like any other log.
+
+The base is the GSDC 2020-05-14 drive (a Pixel 4's fixes with the NovAtel SPAN truth, from
+``../shared/data``), diagnosed against ``holux-m1000``. The untouched log is diagnosed first:
+what it already finds is the base's own gap (a phone is not a Holux). Then, per trial, one
+change a real receiver or a real set-up makes is applied to the log's fixes (or to the truth),
+at drawn parameters:
+
+- ``latency``: every fix reports where the antenna was L seconds earlier (a pure output delay);
+- ``nav_filter``: the fixes pass a first-order low-pass filter of time constant tau;
+- ``static_hold``: the fix is frozen while the log's own speed is below a threshold;
+- ``truth_offset``: the truth is moved by several metres (a wrong truth).
+
+A trial is right when the injected effect is the first effect added that the untouched log did
+not add (or, for one it added too, when the new fit's interval holds the injected value), and
+for the wrong truth when the diagnosis names a truth offset whose interval holds the injected
+one and adds no effect the untouched log did not.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps import geodesy, pose
+from virtualgps.gap import diagnose as dg
+from virtualgps.gap.ingest import read_real_log
+from virtualgps.nmea import nmea_checksum, read_text_lines
+
+GSDC = "gsdc-2020-05-14-mtv"
+BASE_PROFILE = "holux-m1000"
+REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset")
+MPS_PER_KNOT = 1852.0 / 3600.0
+
+
+def _tod_s(hhmmss: str) -> float:
+    return int(hhmmss[:2]) * 3600.0 + int(hhmmss[2:4]) * 60.0 + float(hhmmss[4:])
+
+
+def _fmt_minutes(value_deg: float, deg_digits: int, decimals: int) -> tuple[str, str]:
+    """A coordinate as NMEA ``(d)ddmm.mmmm`` with the hemisphere's sign left to the caller."""
+    a = abs(value_deg)
+    d = int(a)
+    m = round((a - d) * 60.0, decimals)
+    if m >= 60.0:
+        d, m = d + 1, 0.0
+    return f"{d:0{deg_digits}d}{m:0{3 + decimals}.{decimals}f}", ""
+
+
+def rewrite_fixes(lines: list[str], t_unix_s: np.ndarray, lat_deg: np.ndarray,
+                  lon_deg: np.ndarray) -> list[str]:
+    """The log's lines with the GGA and RMC positions of each epoch replaced (matched by the
+    sentence's time of day), in the log's own digits, checksums recomputed.
+
+    t_unix_s, lat_deg, lon_deg : (n,) the new position of each epoch
+    """
+    by_tod = {round(float(t) % 86400.0, 2): (a, b) for t, a, b in zip(t_unix_s, lat_deg,
+                                                                        lon_deg, strict=True)}
+    out = []
+    for ln in lines:
+        body = ln.strip()
+        if not body.startswith("$") or "*" not in body:
+            out.append(ln)
+            continue
+        f = body[1:body.rindex("*")].split(",")
+        kind = f[0][-3:]
+        pos = {"GGA": 2, "RMC": 3}.get(kind)
+        if pos is None or not f[1] or not f[pos]:
+            out.append(ln)
+            continue
+        new = by_tod.get(round(_tod_s(f[1]), 2))
+        if new is None or not np.isfinite(new[0]):
+            out.append(ln)
+            continue
+        dec = len(f[pos].split(".")[1]) if "." in f[pos] else 4
+        f[pos] = _fmt_minutes(new[0], 2, dec)[0]
+        f[pos + 1] = "N" if new[0] >= 0 else "S"
+        f[pos + 2] = _fmt_minutes(new[1], 3, dec)[0]
+        f[pos + 3] = "E" if new[1] >= 0 else "W"
+        text = ",".join(f)
+        out.append(f"${text}*{nmea_checksum(text)}")
+    return out
+
+
+def _enu(lat, lon, lat0, lon0):
+    e = geodesy.ecef_to_enu(geodesy.geodetic_to_ecef(lat, lon, np.zeros_like(lat)), lat0, lon0,
+                            0.0)
+    return e[:, :2]
+
+
+def _geo(en, lat0, lon0):
+    enu = np.column_stack([en, np.zeros(len(en))])
+    lat, lon, _ = geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(enu, lat0, lon0, 0.0))
+    return lat, lon
+
+
+def inject(effect: str, value: float, t: np.ndarray, lat: np.ndarray, lon: np.ndarray,
+           speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fixes a receiver with ``effect`` at ``value`` would have printed instead.
+
+    t, lat, lon, speed_mps : (n,) the log's fixed epochs (time, position, its own speed)
+    """
+    lat0, lon0 = float(lat[0]), float(lon[0])
+    en = _enu(lat, lon, lat0, lon0)
+    if effect == "latency":
+        out = np.column_stack([np.interp(t - value, t, en[:, a]) for a in (0, 1)])
+    elif effect == "nav_filter":
+        out = en.copy()
+        for k in range(1, t.size):
+            a = math.exp(-(t[k] - t[k - 1]) / value)
+            out[k] = a * out[k - 1] + (1 - a) * en[k]
+    elif effect == "static_hold":
+        out = en.copy()
+        for k in range(1, t.size):
+            if speed_mps[k] < value:
+                out[k] = out[k - 1]
+    else:
+        raise ValueError(effect)
+    return _geo(out, lat0, lon0)
+
+
+def _truth_jsonl(track: pose.PoseTrack, east_m: float, north_m: float, path: Path) -> None:
+    lat, lon = geodesy.offset_geodetic_deg(track.xyz[:, 0], track.xyz[:, 1], track.xyz[:, 2],
+                                           east_m, north_m)
+    path.write_text("".join(json.dumps({"t": float(ti), "lat": float(a), "lon": float(b),
+                                        "alt": float(h)}) + "\n"
+                            for ti, a, b, h in zip(track.t_unix_s, lat, lon, track.xyz[:, 2],
+                                                   strict=True)))
+
+
+def run(data: Path, opts: dg.Options, trials: int, work: Path,
+        progress: Callable[[str], None] | None = None) -> tuple[list[dict], str | None]:
+    """The real-log trials: (rows for ``selfcheck.json``, a note when the data are missing)."""
+    from virtualgps.gap import selfcheck, tool
+
+    d = Path(data) / GSDC
+    real, truth = d / "Pixel4_chipset.nmea", d / "SPAN_Pixel4_1Hz.nmea"
+    tle = d / "gps-ops_2020-05-14T22Z.tle"
+    if not (real.exists() and truth.exists() and tle.exists()):
+        return [], f"real-log bases not run: {d} not found"
+    work.mkdir(parents=True, exist_ok=True)
+
+    def diagnose(real_path: Path, truth_spec: str) -> dict:
+        inp = tool.GapInputs(real=(str(real_path),), truth=(truth_spec,), scene="none",
+                             tle=str(tle), profile=BASE_PROFILE)
+        return tool.diagnose(inp, opts)[0]
+
+    base = diagnose(real, str(truth))
+    base_added = [e["name"] for e in base["effects"] if e.get("accepted")]
+    if progress:
+        progress(f"self-check real base gsdc: the untouched log adds {base_added or 'nothing'}")
+    ep, _, _ = read_real_log(real)
+    fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
+    t, lat, lon = ep.t_unix_s[fix], ep.lat_deg[fix], ep.lon_deg[fix]
+    speed = np.nan_to_num(ep.speed_mps[fix])
+    lines = read_text_lines(real)
+    track = pose.read_pose_log(truth)
+    rows = []
+    for effect in REAL_EFFECTS:
+        for i in range(trials):
+            rng = np.random.default_rng([selfcheck.SEED_BASE, 77, REAL_EFFECTS.index(effect), i])
+            tag = f"real-gsdc-{effect}-{i}"
+            if effect == "truth_offset":
+                ang = rng.uniform(0, 2 * np.pi)
+                size = round(float(rng.uniform(5.0, 10.0)), 1)
+                east, north = size * math.sin(ang), size * math.cos(ang)
+                tpath = work / f"{tag}-truth.jsonl"
+                _truth_jsonl(track, east, north, tpath)
+                report = diagnose(real, str(tpath))
+                injected = {"east_m": round(east, 2), "north_m": round(north, 2)}
+                off = next((c for c in report.get("causes", []) if c["name"] == "truth_offset"),
+                           None)
+                # the truth moved by +d: the fixes lie -d from it
+                held = off is not None and off["applied"] and all(
+                    lo <= -v <= hi for v, (lo, hi) in ((east, off["interval_m"]["east"]),
+                                                     (north, off["interval_m"]["north"])))
+                added = [e["name"] for e in report["effects"] if e.get("accepted")]
+                success = bool(held and set(added) <= set(base_added))
+                recovered = ({"east_m": -off["east_m"], "north_m": -off["north_m"]}
+                             if off is not None else {})
+            else:
+                lo_hi = {"latency": (0.8, 2.5), "nav_filter": (1.5, 4.0),
+                         "static_hold": (0.8, 1.5)}[effect]
+                value = round(float(rng.uniform(*lo_hi)), 2)
+                nlat, nlon = inject(effect, value, t, lat, lon, speed)
+                path = work / f"{tag}.nmea"
+                path.write_text("\n".join(rewrite_fixes(lines, t, nlat, nlon)) + "\n")
+                report = diagnose(path, str(truth))
+                key = {"latency": "latency_s", "nav_filter": "tau_s",
+                       "static_hold": "threshold_mps"}[effect]
+                injected = {key: value}
+                added = [e["name"] for e in report["effects"] if e.get("accepted")]
+                params, intervals = selfcheck.recovered((effect,), report)
+                new = [a for a in added if a not in base_added]
+                cov = selfcheck.covered(injected, intervals)
+                success = bool((new and new[0] == effect)
+                               or (effect in base_added and effect in added and cov.get(key)))
+                recovered = params
+            accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
+            ranked = [a for a in accepted if a not in base_added] or [selfcheck.NOTHING]
+            first = (("truth_offset" if success else ranked[0]) if effect == "truth_offset"
+                     else ranked[0])
+            rows.append({
+                "injected": f"real:gsdc:{effect}", "kind": "real", "effects": [effect],
+                "scenario": "gsdc drive, holux-m1000", "params": injected,
+                "ranked": ranked, "accepted": accepted, "base_accepted": base_added,
+                "ranked_first": first, "added_first": ranked[0], "success": success,
+                "recovered": recovered,
+                "recovered_interval": ({} if effect == "truth_offset" else intervals),
+                "covered": ({} if effect == "truth_offset" else selfcheck.covered(injected,
+                                                                                 intervals)),
+                "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
+                "outer_reduction": (report.get("outer") or {}).get("reduction"),
+                "outer_interval": (report.get("outer") or {}).get("interval"),
+                "where_rows": len(report["where"]),
+                "where_outside": sum(w["outside"] for w in report["where"]),
+                "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
+                "real": str(real), "truth": str(truth),
+            })
+            if progress:
+                progress(f"self-check real:gsdc:{effect} trial {i + 1}/{trials}: "
+                         f"{'right' if success else 'wrong'} (new: {ranked})")
+    return rows, None

@@ -1,0 +1,206 @@
+"""Ensembles of the prepared runs under candidate profiles, scored per held-out unit, with a cache
+and batched requests (DESIGN 7.2).
+
+A request names a profile table, a seed set and runs; everything missing is simulated in one
+batch of jobs (one job per table, seed set and run: the run simulated once per seed over all its
+epochs, and every unit of the run scored where the job runs, so only the scores come back). The
+selections of a diagnosis (the full one and one per outer fold) ask together, so a batch holds
+every candidate's grid for every fold at once.
+
+Seed sets. Set 0 fits parameters, set 1 measures the held-out gap of what set 0 fitted (with
+common random numbers the same seeds would carry the fit's luck from a run's training blocks
+into its held-out blocks), set 2 the outer test. Each set is ``fit_seeds`` seeds of its own.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from virtualgps.gap import effects as fx
+from virtualgps.gap.design import Design
+from virtualgps.gap.ensemble import Ensemble, EnsembleJob, simulate_job, split_seeds
+from virtualgps.gap.jobs import map_jobs, share, shared
+from virtualgps.gap.runs import Run, sim_obs
+from virtualgps.gap.where import (
+    SCORE_METRICS,
+    bin_tracking,
+    errors_enu,
+    gap_score,
+    prn_tracking,
+    segment_stats,
+)
+
+FIT, HELD, OUTER = 0, 1, 2  # seed sets
+
+
+@dataclass(frozen=True)
+class UnitScore:
+    """One unit under one table and seed set: the gap, the distance per metric, and (where
+    asked) the per-PRN and per-sky-bin tracking counts (see
+    :func:`virtualgps.gap.where.prn_tracking`, :func:`virtualgps.gap.where.bin_tracking`)."""
+
+    gap: float
+    parts: dict[str, float]
+    prn: np.ndarray | None = None
+    bins: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class GapJob:
+    """Simulate one run with one profile for some seeds and score some of its units there.
+
+    run : the key under which the run (setup, view, real errors) was shared with the workers
+    (:func:`share_runs`); profile, seeds : what to simulate; units : (n,) bool masks of the
+    units to score; prn, bins : also count tracking per PRN, per sky bin
+    """
+
+    run: str
+    profile: Any
+    seeds: tuple[int, ...]
+    units: tuple[np.ndarray, ...]
+    prn: bool = False
+    bins: bool = False
+
+
+def share_runs(runs: list[Run]) -> list[str]:
+    """Give every worker the prepared runs once (:func:`virtualgps.gap.jobs.share`); returns
+    the runs' keys."""
+    tag = uuid.uuid4().hex[:12]
+    keys = [f"gap-run:{tag}:{i}" for i in range(len(runs))]
+    share({k: (r.setup, r.view, r.err_real) for k, r in zip(keys, runs, strict=True)})
+    return keys
+
+
+def gap_job(j: GapJob) -> list[UnitScore]:
+    """The score of each asked unit of a run (see :class:`GapJob`)."""
+    setup, view, err_real = shared(j.run)
+    sims = sim_obs(simulate_job(EnsembleJob(setup, j.profile, j.seeds)), view)
+    err = errors_enu(view, sims)
+    out = []
+    for m in j.units:
+        gap, parts = gap_score(segment_stats(view, sims, err_real, err, m,
+                                             metrics=SCORE_METRICS))
+        out.append(UnitScore(gap, parts, prn_tracking(view, sims, m) if j.prn else None,
+                             bin_tracking(view, sims, m) if j.bins else None))
+    return out
+
+
+def table_key(table: dict[str, Any]) -> str:
+    """A profile table's identity (its TOML text)."""
+    return fx.to_toml(table)
+
+
+class Simulator:
+    """Runs ensembles of the prepared runs for profile tables; caches each unit's score.
+
+    Parameters
+    ----------
+    runs : the prepared runs; design : their units (:mod:`.design`)
+    fit_seeds : seeds per seed set; jobs, dask : where jobs run; base_source : profile source
+    keys : the runs' keys where :func:`share_runs` was called already (None: shared here)
+    """
+
+    def __init__(self, runs: list[Run], design: Design, fit_seeds: int, jobs: int | None,
+                 dask: str | None, base_source: str, keys: list[str] | None = None) -> None:
+        self.runs, self.design, self.n_seeds = runs, design, fit_seeds
+        self.jobs, self.dask, self.source = jobs, dask, base_source
+        self.units = design.all_units()
+        self.run_units: dict[int, list[int]] = {}
+        for u, unit in enumerate(self.units):
+            self.run_units.setdefault(unit.run, []).append(u)
+        self._scores: dict[tuple[str, int, int], UnitScore] = {}
+        self.keys = keys if keys is not None else share_runs(runs)
+        # per-sky-bin counts are only read to learn sky masks, from logs with SNR
+        self.bins = any(r.view.assess.get("gsv") and r.view.assess.get("cn0") for r in runs)
+        self.n_sims = 0
+        self.batches: list[int] = []  # jobs per batch (for the benchmark)
+
+    def seeds(self, seed_set: int) -> tuple[int, ...]:
+        """The seeds of a seed set (disjoint ranges)."""
+        return tuple(range(seed_set * self.n_seeds, (seed_set + 1) * self.n_seeds))
+
+    def request(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> None:
+        """Make sure every (table, seed set, units) item is scored: what is missing is
+        simulated in one batch of jobs (one per table, seed set and run, scoring that run's
+        missing units). Per-sky-bin counts come with the fitting seeds (learned sky masks are
+        fitted), per-PRN counts with the held-out seeds (the tracking disagreement)."""
+        todo: dict[tuple[str, int, int], tuple[dict[str, Any], set[int]]] = {}
+        for table, seed_set, units in items:
+            key = table_key(table)
+            for u in units:
+                if (key, seed_set, u) not in self._scores:
+                    todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
+        if not todo:
+            return
+        profiles: dict[str, Any] = {}
+        jobs, owners = [], []
+        for (key, seed_set, r), (table, us) in todo.items():
+            if key not in profiles:
+                profiles[key] = fx.build(table, self.source)
+            order = sorted(us)
+            jobs.append(GapJob(self.keys[r], profiles[key], self.seeds(seed_set),
+                               tuple(self.units[u].mask for u in order),
+                               prn=seed_set == HELD, bins=seed_set == FIT and self.bins))
+            owners.append((key, seed_set, r, order))
+        self.batches.append(len(jobs))
+        res = map_jobs(gap_job, jobs, jobs=self.jobs, dask_address=self.dask)
+        for (key, seed_set, r, order), scores, j in zip(owners, res, jobs, strict=True):
+            self.n_sims += len(j.seeds) * self.runs[r].setup.t_unix_s.size
+            for u, sc in zip(order, scores, strict=True):
+                self._scores[(key, seed_set, u)] = sc
+
+    def score(self, table: dict[str, Any], seed_set: int, unit: int) -> UnitScore:
+        """A unit's score (after :meth:`request`)."""
+        return self._scores[(table_key(table), seed_set, unit)]
+
+    def gap(self, table: dict[str, Any], seed_set: int, units: Sequence[int]) -> float:
+        """Mean gap over some units (NaN where none is assessed)."""
+        g = [self.score(table, seed_set, u).gap for u in units]
+        g = [x for x in g if np.isfinite(x)]
+        return float(np.mean(g)) if g else float("nan")
+
+    def parts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
+              ) -> dict[str, float]:
+        """Mean distance per metric over the units that assess it."""
+        per = [self.score(table, seed_set, u).parts for u in units]
+        names = sorted({m for p in per for m in p})
+        return {m: float(np.mean([p[m] for p in per if m in p])) for m in names}
+
+    def sky_bins(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
+                 ) -> np.ndarray:
+        """(5, n_bins) tracking counts and SNR sums per sky bin, summed over units."""
+        return np.sum([self.score(table, seed_set, u).bins for u in units], axis=0)
+
+    def prn_counts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
+                   ) -> list[np.ndarray]:
+        """Per-PRN tracking counts of some units."""
+        return [self.score(table, seed_set, u).prn for u in units]
+
+
+def ensembles(runs: list[Run], table: dict[str, Any], seeds: Sequence[int], jobs: int | None,
+              dask: str | None, source: str) -> tuple[dict[int, Ensemble], int]:
+    """Simulate every run with a profile table for some seeds, whole outputs (each run's seeds
+    split into jobs so that a batch holds several jobs per worker).
+
+    Returns {run index: Ensemble} and the simulated epochs
+    """
+    prof = fx.build(table, source)
+    n_jobs = jobs or os.cpu_count() or 1
+    per_run = max(1, (4 * n_jobs) // max(1, len(runs)))
+    items, owner = [], []
+    for i, r in enumerate(runs):
+        for part in split_seeds(tuple(seeds), per_run):
+            items.append(EnsembleJob(r.setup, prof, part))
+            owner.append(i)
+    res = map_jobs(simulate_job, items, jobs=jobs, dask_address=dask)
+    out: dict[int, list[Ensemble]] = {}
+    for i, e in zip(owner, res, strict=True):
+        out.setdefault(i, []).append(e)
+    n = sum(len(j.seeds) * j.setup.t_unix_s.size for j in items)
+    return {i: Ensemble.concat(v) for i, v in out.items()}, n
