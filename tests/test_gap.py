@@ -5,10 +5,10 @@ ingest of real logs, the withheld-effect self-check, and the real withheld cases
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,9 +19,6 @@ from virtualgps.gap import runs, select, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
 from virtualgps.pose import PoseTrack
 from virtualgps.profiles import build_profile, load_profile, load_profile_dict
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tools"))
 
 
 @pytest.fixture(autouse=True)
@@ -332,6 +329,15 @@ def test_gsdc_drive_without_gsv_reports_what_it_cannot_assess(shared_data, tmp_p
         assert ok, f"{what}: {measured}"
     html = (tmp_path / "gsdc" / "report.html").read_text()
     assert "no GSV" in html or "not assessed" in html.lower()
+    # a roboticist's minute: the headline in metres and seconds, what the score means, the
+    # lag between the phone's fixes and the truth, in a real browser with every figure drawn
+    from test_report import _rendered_widths
+
+    assert "At a glance" in html and "How to read the gap score" in html
+    assert re.search(r"<td>CEP50</td><td>[0-9.]+ m</td>", html)
+    assert "the fixes lag the truth by" in html
+    widths = _rendered_widths(tmp_path / "gsdc" / "report.html", tmp_path)
+    assert len(widths) >= 7 and all(w > 100 for w in widths), widths
 
 
 def test_gap_cli_errors_are_one_line(tmp_path):

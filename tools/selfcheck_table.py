@@ -2,9 +2,11 @@
 
     python tools/selfcheck_table.py sc/selfcheck.json
 
-Per injected effect: how often it was ranked first and added first, what was ranked first
-instead, its main parameter injected against recovered (medians, and the median absolute
-error), and the median held-out shrinkage of the gap (1 - gap_after / gap_before).
+Per trial label (an injected effect, a pair, a null trial, a real-log base): how often the
+diagnosis was right, what it ranked first instead (``nothing``: no effect added), the main
+parameter injected against recovered (medians, the median absolute error, and how often the
+recovered interval held the injected value), and the median outer-test shrinkage of the gap
+(1 - gap_after / gap_before); then the band's calibration under the null.
 """
 
 from __future__ import annotations
@@ -40,6 +42,14 @@ def _param_cell(effect: str, trials: list[dict]) -> str:
             hit += len(learned & injected)
             total += len(learned)
         return f"{hit} of the {total} learned bins lie in the blocked sector"
+    if effect == "truth_offset":
+        pairs = [(np.hypot(t["params"]["east_m"], t["params"]["north_m"]),
+                  np.hypot(t["recovered"]["east_m"], t["recovered"]["north_m"]))
+                 for t in trials if t.get("recovered")]
+        if not pairs:
+            return "offset not named"
+        inj, rec = np.array(pairs).T
+        return f"offset {np.median(inj):.3g} → {np.median(rec):.3g} m"
     if effect not in MAIN_PARAM:
         return "(on/off)"
     key, unit = MAIN_PARAM[effect]
@@ -48,24 +58,30 @@ def _param_cell(effect: str, trials: list[dict]) -> str:
     if not pairs:
         return f"`{key}`: not recovered"
     inj, rec = np.array(pairs, dtype=float).T
+    cov = [t["covered"][key] for t in trials if key in t.get("covered", {})]
     return (f"`{key}` {np.median(inj):.4g} → {np.median(rec):.4g} {unit} "
-            f"(median error {np.median(np.abs(rec - inj)):.2g})")
+            f"(median error {np.median(np.abs(rec - inj)):.2g}; interval holds it "
+            f"{sum(cov)}/{len(cov)})")
 
 
 def table(result: dict) -> str:
     """The markdown table of one self-check result."""
-    out = ["| injected | ranked first | added first | ranked first instead | parameter: "
-           "injected → recovered, median | held-out gap, median shrink |",
-           "|---|---|---|---|---|---|"]
-    for effect, s in result["summary"].items():
-        trials = [t for t in result["trials"] if t["injected"] == effect]
-        others = {k: v for k, v in result["confusion"][effect].items() if k != effect}
+    out = ["| trials | right | ranked first instead | parameter: injected → recovered, median | "
+           "outer-test gap, median shrink |",
+           "|---|---|---|---|---|"]
+    for label, s in result["summary"].items():
+        trials = [t for t in result["trials"] if t["injected"] == label]
+        trials_effects = set(trials[0]["effects"]) or {"nothing"}
+        others = ({} if s["kind"] == "real" else
+                  {k: v for k, v in result["confusion"][label].items()
+                   if k not in trials_effects})
         instead = ", ".join(f"`{k}` {v}" for k, v in sorted(others.items())) or "—"
-        shrink = np.median([1.0 - t["gap_after"] / t["gap_before"] for t in trials
-                            if t["gap_before"] > 0])
-        out.append(f"| `{effect}` | {s['ranked_first']}/{s['trials']} | "
-                   f"{s['added_first']}/{s['trials']} | {instead} | "
-                   f"{_param_cell(effect, trials)} | −{100 * shrink:.0f} % |")
+        shrink = [1.0 - t["gap_after"] / t["gap_before"] for t in trials
+                  if t["gap_before"] and t["gap_after"] is not None and t["gap_before"] > 0]
+        effect = trials[0]["effects"][0] if trials[0]["effects"] else None
+        cell = _param_cell(effect, trials) if effect and s["kind"] != "pair" else "—"
+        out.append(f"| `{label}` | {s['success']}/{s['trials']} | {instead} | {cell} | "
+                   + (f"−{100 * np.median(shrink):.0f} % |" if shrink else "— |"))
     return "\n".join(out)
 
 
@@ -75,10 +91,15 @@ def main() -> None:
     args = ap.parse_args()
     result = json.loads(args.selfcheck_json.read_text(encoding="utf-8"))
     n = len(result["trials"])
-    print(f"{n} trials: ranked first {100 * result['share_ranked_first']:.0f} % (another "
-          f"effect {100 * result['share_other_first']:.0f} %), added first "
-          f"{100 * result['share_added_first']:.0f} % (another effect "
-          f"{100 * result['share_other_added_first']:.0f} %)\n")
+    cal = result["null_calibration"]
+    print(f"{n} trials, right in {100 * result['share_success']:.0f} %; a single injected "
+          f"effect ranked first in {100 * (result['share_ranked_first'] or 0):.0f} % (another "
+          f"effect {100 * (result['share_other_first'] or 0):.0f} %)")
+    if cal["reports"]:
+        lo, hi = cal["report_share_interval"]
+        print(f"null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports with any "
+              f"row outside (95 %: {100 * lo:.0f}-{100 * hi:.0f} %), {cal['rows_outside']}/"
+              f"{cal['rows']} rows; {cal['effects_added']} with an effect added\n")
     print(table(result))
 
 

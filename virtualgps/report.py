@@ -228,7 +228,9 @@ def _effect_rows(report: dict) -> list[dict]:
             notes.append("tied with " + ", ".join(e["tied_with"]))
         if e.get("alias"):
             notes.append(e["alias"])
-        if not e.get("accepted") and e.get("accepted_test"):
+        if e.get("removed"):
+            notes.append("added, then taken out: " + e["removed"])
+        elif not e.get("accepted") and e.get("accepted_test"):
             notes.append("not added: " + e["accepted_test"])
         rows.append({"effect": e["name"], "added": e.get("accepted"), "params": e.get("params"),
                      "held-out gap before": e.get("gap_before"),

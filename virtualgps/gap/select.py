@@ -345,6 +345,7 @@ class Selection:
     fold_tables : each fold's profile; folds : the held-out groups
     rounds : per round, the gap before it and each candidate's held-out gap and verdict
     tracking : per-PRN tracking disagreement on held-out units, before and after
+    removed : added effects taken out again, the others making them redundant
     """
 
     steps: list[dict]
@@ -357,6 +358,7 @@ class Selection:
     folds: list[list[int]]
     rounds: list[dict] = field(default_factory=list)
     tracking: dict = field(default_factory=dict)
+    removed: list[dict] = field(default_factory=list)
 
 
 def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
@@ -370,8 +372,7 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
     units : the units cross-validated over; fit_units : what added effects are fitted on
     candidates : profile table -> (candidates, skipped)
     k_folds : folds at most
-    full : also measure each added effect's leave-one-out contribution and the per-PRN
-        tracking disagreement (the reported selection)
+    full : also measure the per-PRN tracking disagreement (the reported selection)
     """
     folds = make_folds(units, k_folds)
     train = [[u for u in units if u not in f] for f in folds]
@@ -432,8 +433,24 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
         cands += [c for c in more if c.name not in known]
     sel = Selection(steps, ranking, skipped, baseline, current, table, fold_tables, folds,
                     rounds)
+    yield from _contributions(sim, base, sel)
+    # An effect the others make redundant (the held-out gap is no higher without it) goes:
+    # greedy order can add one that later effects explain better; ties go to the simpler model.
+    drop = [s for s in sel.steps if len(sel.steps) > 1 and s["contribution"] <= 0.0]
+    if drop:
+        for s in drop:
+            s["removed"] = (f"the held-out gap is no higher without it (leave-one-out "
+                            f"contribution {s['contribution']:.3f})")
+        sel.steps = [s for s in sel.steps if s not in drop]
+        table = base
+        for s in sel.steps:
+            table = fx.apply(table, s["_fitted"])
+        sel.final_table, sel.fold_tables = table, [table] * n_f
+        yield [(table, HELD, units)]
+        sel.final = _mean(np.array([sim.gap(table, HELD, f) for f in folds]))
+        sel.removed = drop
     if full:
-        yield from _contributions(sim, base, sel)
+        fold_tables = sel.fold_tables
         yield [(t, HELD, f) for t, f in zip([base] * n_f + fold_tables,
                                                          folds + folds, strict=True)]
         before = pooled_tracking_disagreement(

@@ -232,9 +232,11 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
     if choice is not None:
         full = choice.full
         names = {s["name"] for s in full.steps}
+        removed = {s["name"] for s in full.removed}
         effects = ([dg.public(s) | {"accepted": True} for s in full.steps]
+                   + [dg.public(s) | {"accepted": False} for s in full.removed]
                    + [dg.public(r) | {"accepted": False} for r in full.ranking
-                      if r["name"] not in names])
+                      if r["name"] not in names | removed])
         for e in effects:
             e["outer_share"] = share.get(e["name"], 0.0)
             e["heldout_scheme"] = design.scheme
