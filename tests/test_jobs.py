@@ -130,3 +130,28 @@ def test_dask_cluster_gives_the_same_ensembles(dask_cluster):
     _same(jobs.map_jobs(simulate_job, items, jobs=1),
           jobs.map_jobs(simulate_job, items, dask_address=dask_cluster))
 
+
+
+def _read_shared(key: str) -> tuple[float, int]:
+    """A job that reads a shared object, and the BLAS threads its worker runs with."""
+    from threadpoolctl import threadpool_info
+
+    blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+    return float(np.sum(jobs.shared(key))), max(blas) if blas else 1
+
+
+def test_shared_objects_reach_every_worker_once(dask_cluster):
+    """A run's epochs go to the workers once (not with each job): forked into local workers,
+    installed on every Dask worker; each worker keeps one BLAS thread."""
+    jobs.share({"test:a": np.arange(10.0)})
+    try:
+        for kw in ({"jobs": 1}, {"jobs": 2}, {"dask_address": dask_cluster}):
+            got = jobs.map_jobs(_read_shared, ["test:a"] * 4, **kw)
+            assert [g[0] for g in got] == [45.0] * 4
+            if "jobs" not in kw or kw["jobs"] > 1:
+                assert all(g[1] == 1 for g in got), (kw, got)
+        jobs.share({"test:a": np.arange(5.0)})  # changed: the workers see the new one
+        for kw in ({"jobs": 2}, {"dask_address": dask_cluster}):
+            assert jobs.map_jobs(_read_shared, ["test:a"] * 2, **kw)[0][0] == 10.0
+    finally:
+        jobs.unshare(["test:a"])

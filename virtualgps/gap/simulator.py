@@ -14,6 +14,7 @@ into its held-out blocks), set 2 the outer test. Each set is ``fit_seeds`` seeds
 
 from __future__ import annotations
 
+import json
 import os
 import uuid
 from collections.abc import Iterable, Sequence
@@ -92,8 +93,9 @@ def gap_job(j: GapJob) -> list[UnitScore]:
 
 
 def table_key(table: dict[str, Any]) -> str:
-    """A profile table's identity (its TOML text)."""
-    return fx.to_toml(table)
+    """A profile table's identity: its JSON text, keys sorted (a selection looks tables up tens
+    of thousands of times; ``json`` writes them twenty times faster than TOML)."""
+    return json.dumps(table, sort_keys=True)
 
 
 class Simulator:

@@ -207,16 +207,30 @@ def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top:
     bins for an even count, like an order statistic, not interpolated)."""
     s = x.shape[0]
     nb = int(round(top / step)) + 1
-    mask = np.broadcast_to(mask, x.shape)
-    rows = np.nonzero(mask)[0]
-    b = np.clip(np.rint(x[mask] / step), 0, nb - 1)
-    b = np.where(np.isfinite(b), b, 0).astype(np.int64)
-    counts = np.bincount(rows * nb + b, minlength=s * nb).reshape(s, nb)
+    b = _bins(x, step, nb)
+    # one bincount over every row: masked-out values go to an extra bin past the last
+    idx = np.where(np.broadcast_to(mask, x.shape), b, nb).reshape(s, -1)
+    idx = idx + (np.arange(s, dtype=np.int32) * (nb + 1))[:, None]
+    counts = np.bincount(idx.ravel(), minlength=s * (nb + 1)).reshape(s, nb + 1)[:, :nb]
     cum = np.cumsum(counts, axis=1)
     n = cum[:, -1]
     k = np.floor(q * np.maximum(n - 1, 0))
-    idx = (cum <= k[:, None]).sum(axis=1)
-    return np.where(n > 0, np.minimum(idx, nb - 1) * step, np.nan)
+    pos = (cum <= k[:, None]).sum(axis=1)
+    return np.where(n > 0, np.minimum(pos, nb - 1) * step, np.nan)
+
+
+_BINS: list = [None, None, None]  # the last (data, step, bins): a where table bins one array
+# for every segment, PRN and sky sector
+
+
+def _bins(x: np.ndarray, step: float, nb: int) -> np.ndarray:
+    """int32 bin of each value of ``x`` (NaN: bin 0), cached for the last array."""
+    if _BINS[0] is x and _BINS[1] == (step, nb):
+        return _BINS[2]
+    b = np.clip(np.rint(np.nan_to_num(np.asarray(x, dtype=float)) / step), 0, nb - 1)
+    b = b.astype(np.int32)
+    _BINS[:] = [x, (step, nb), b]
+    return b
 
 
 def _rowmean(x: np.ndarray) -> np.ndarray:
