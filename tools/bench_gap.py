@@ -35,7 +35,8 @@ def once(inp: tool.GapInputs, opts: dg.Options) -> dict:
     t0 = time.perf_counter()
     report, figures, calibrated = tool.diagnose(inp, opts)
     with tempfile.TemporaryDirectory() as out:
-        tool.write_outputs(report, figures, calibrated, report["profile"], out)
+        tool.write_outputs(report, figures, calibrated, report["profile"], out, opts.jobs,
+                           opts.dask)
     wall = time.perf_counter() - t0
     par = jobs.STATS["wall_s"]
     return {"wall_s": wall, "parallel_s": par, "serial_s": wall - par,

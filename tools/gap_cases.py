@@ -135,7 +135,8 @@ def run_case(case: str, data: Path, out: Path, opts: dg.Options) -> tuple[dict, 
     """Diagnose one case and write its reports; returns the report and the seconds taken."""
     t0 = time.perf_counter()
     report, figures, calibrated = tool.diagnose(case_inputs(case, data), opts)
-    tool.write_outputs(report, figures, calibrated, report["profile"], out / case)
+    tool.write_outputs(report, figures, calibrated, report["profile"], out / case, opts.jobs,
+                       opts.dask)
     return report, time.perf_counter() - t0
 
 

@@ -547,7 +547,8 @@ def cmd_gap(args: argparse.Namespace) -> int:
     if progress:
         sys.stderr.write("\r\x1b[K")
     try:
-        tool.write_outputs(report, figures, calibrated, report["profile"], out)
+        tool.write_outputs(report, figures, calibrated, report["profile"], out, opts.jobs,
+                           opts.dask)
     except OSError as exc:
         raise VirtualGPSError(f"--out {out}: cannot write the report ({exc.strerror})") from None
     for line in tool.summary_lines(report):

@@ -139,33 +139,44 @@ def _page(title: str, body: list[str]) -> str:
             + "\n".join(body) + "</body></html>\n")
 
 
-def gap_figures(data: GapFigureData) -> list[str]:
-    """The report's figures as HTML ``<figure>`` elements."""
+def _render(item: tuple[str, tuple]) -> bytes:
+    """One figure's PNG: (name of a :mod:`virtualgps.plot` function, its arguments)."""
     from virtualgps import plot
 
-    out = []
+    name, args = item
+    return getattr(plot, name)(*args)
+
+
+def gap_figures(data: GapFigureData, jobs: int | None = 1, dask: str | None = None
+                ) -> list[str]:
+    """The report's figures as HTML ``<figure>`` elements, drawn on ``jobs`` worker processes
+    (or a Dask cluster) side by side: each is independent of the others."""
+    from virtualgps.gap.jobs import map_jobs
+
+    items: list[tuple[str, str, tuple]] = []
     for i, run in enumerate(data.runs[:MAX_RUN_FIGURES]):
-        out.append(_figure(f"track-{i}", plot.fig_track(run),
-                           f"{run.name}: truth, real and simulated fixes (the paper's Fig. 5)"))
-        out.append(_figure(f"error-{i}", plot.fig_error_time(run),
-                           f"{run.name}: horizontal error over time against the ensemble band, "
-                           "and the paper's Eq. 4 (Fig. 6)"))
-        out.append(_figure(f"satellites-{i}", plot.fig_satellites(run),
-                           f"{run.name}: satellites used over time (the paper's Fig. 7)"))
-    out.append(_figure("sky", plot.fig_sky_disagreement(
-        data.sky_az_deg, data.sky_el_deg, data.sky_disagreement),
-        "per-pass tracking disagreement on the sky (red: the real receiver tracks more)"))
+        items += [
+            (f"track-{i}", f"{run.name}: truth, real and simulated fixes (the paper's Fig. 5)",
+             ("fig_track", (run,))),
+            (f"error-{i}", f"{run.name}: horizontal error over time against the seeds' range, "
+             "and the paper's Eq. 4 (Fig. 6)", ("fig_error_time", (run,))),
+            (f"satellites-{i}", f"{run.name}: satellites used over time (the paper's Fig. 7)",
+             ("fig_satellites", (run,)))]
     real = np.concatenate([r.real_err_h_m for r in data.runs])
     sim = np.concatenate([r.sim_err_h_m for r in data.runs], axis=1)
-    out.append(_figure("cdf", plot.fig_error_cdf(real, sim),
-                       "horizontal error CDF: real against the seeds' 2.5-97.5 % range"))
-    out.append(_figure("acf", plot.fig_autocorrelation(
-        data.acf_lags_s, data.real_acf, data.sim_acf, data.final_acf),
-        "error autocorrelation: real against the ensemble (longest run)"))
-    out.append(_figure("waterfall", plot.fig_waterfall(data.waterfall_labels,
-                                                       data.waterfall_gaps),
-                       "held-out gap through each added effect"))
-    return out
+    items += [
+        ("sky", "per-pass tracking disagreement on the sky (red: the real receiver tracks more)",
+         ("fig_sky_disagreement", (data.sky_az_deg, data.sky_el_deg, data.sky_disagreement))),
+        ("cdf", "horizontal error CDF: real against the seeds' 2.5-97.5 % range",
+         ("fig_error_cdf", (real, sim))),
+        ("acf", "error autocorrelation: real against the ensemble (longest run)",
+         ("fig_autocorrelation", (data.acf_lags_s, data.real_acf, data.sim_acf,
+                                  data.final_acf))),
+        ("waterfall", "held-out gap through each added effect",
+         ("fig_waterfall", (data.waterfall_labels, data.waterfall_gaps)))]
+    pngs = map_jobs(_render, [it[2] for it in items], jobs=jobs, dask_address=dask)
+    return [_figure(fid, png, caption) for (fid, caption, _), png in zip(items, pngs,
+                                                                          strict=True)]
 
 
 SCORE_EXPLAINED = (
@@ -240,8 +251,10 @@ def _effect_rows(report: dict) -> list[dict]:
     return rows
 
 
-def write_html(report: dict, data: GapFigureData, path: str | Path) -> None:
-    """Write the diagnosis as one self-contained HTML page."""
+def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | None = 1,
+               dask: str | None = None) -> None:
+    """Write the diagnosis as one self-contained HTML page (figures drawn on ``jobs`` worker
+    processes or a Dask cluster, see :func:`gap_figures`)."""
     runs = report.get("runs", [])
     names = ", ".join(r["name"] if isinstance(r, dict) else str(r) for r in runs)
     where = report.get("where", [])
@@ -297,7 +310,7 @@ def write_html(report: dict, data: GapFigureData, path: str | Path) -> None:
                        "sim_hi", "z", "q_value", "outside"],
                lambda r: "outside" if r.get("outside") else ""),
         "</details>",
-        "<h2>Figures</h2>", *gap_figures(data),
+        "<h2>Figures</h2>", *gap_figures(data, jobs, dask),
         "<h2>Unexplained (outside the band with the calibrated profile)</h2>",
         _table(report.get("unexplained", []), ["metric", "segment", "real", "sim_lo", "sim_hi",
                                                "beyond", "z"]),

@@ -9,6 +9,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -173,8 +174,9 @@ def diagnose(
             causes.append(lag)
     georef = cz.georeference(runs, profile.georef)
     keys = share_runs(runs)
-    where, parts, alpha = dg.where_table(runs, base_ens)
-    say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
+    # The located gaps are judged in a thread while the workers simulate the candidates.
+    judging = ThreadPoolExecutor(1)
+    where_job = judging.submit(dg.where_table, runs, base_ens)
     # Guards as long as the real error's correlation time: held-out real data then share no
     # correlated error with the data a fit saw (the simulations use seeds of their own).
     design = make_design([r.view.name for r in runs], [r.view.t_unix_s for r in runs],
@@ -195,6 +197,9 @@ def diagnose(
     choice = None
     if design.claims:
         choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say)
+    where, parts, alpha = where_job.result()
+    judging.shutdown()
+    say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
     final_ens = (ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
@@ -351,8 +356,10 @@ def _ephemeris(path: str):
 
 
 def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: str,
-                  out_dir: str | Path) -> dict:
-    """Write ``report.json``, ``report.html`` and ``calibrated.toml`` into ``out_dir``."""
+                  out_dir: str | Path, jobs: int | None = None, dask: str | None = None
+                  ) -> dict:
+    """Write ``report.json``, ``report.html`` and ``calibrated.toml`` into ``out_dir`` (the
+    figures drawn on ``jobs`` worker processes, default all cores, or a Dask cluster)."""
     from virtualgps import report as rp
 
     out = Path(out_dir)
@@ -361,7 +368,7 @@ def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: st
     dg.write_profile(calibrated, profile_name, steps, out / "calibrated.toml")
     report["calibrated_profile"] = "calibrated.toml"
     rp.write_json(report, out / "report.json")
-    rp.write_html(report, figures, out / "report.html")
+    rp.write_html(report, figures, out / "report.html", jobs, dask)
     return report
 
 

@@ -17,6 +17,7 @@ over the score metrics it supports of each metric's distance in units of the see
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
@@ -219,17 +220,19 @@ def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top:
     return np.where(n > 0, np.minimum(pos, nb - 1) * step, np.nan)
 
 
-_BINS: list = [None, None, None]  # the last (data, step, bins): a where table bins one array
-# for every segment, PRN and sky sector
+# The last (data, step, bins) per thread: a where table bins one array for every segment, PRN
+# and sky sector (and may be judged in a thread beside the selection's own scoring).
+_BINS = threading.local()
 
 
 def _bins(x: np.ndarray, step: float, nb: int) -> np.ndarray:
-    """int32 bin of each value of ``x`` (NaN: bin 0), cached for the last array."""
-    if _BINS[0] is x and _BINS[1] == (step, nb):
-        return _BINS[2]
+    """int32 bin of each value of ``x`` (NaN: bin 0), cached for the thread's last array."""
+    last = getattr(_BINS, "last", None)
+    if last is not None and last[0] is x and last[1] == (step, nb):
+        return last[2]
     b = np.clip(np.rint(np.nan_to_num(np.asarray(x, dtype=float)) / step), 0, nb - 1)
     b = b.astype(np.int32)
-    _BINS[:] = [x, (step, nb), b]
+    _BINS.last = (x, (step, nb), b)
     return b
 
 
