@@ -9,6 +9,7 @@ import re
 import subprocess
 import sys
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -367,3 +368,59 @@ def test_a_satellite_never_tracked_over_a_long_pass_is_silent_not_blocked():
     tracked[:, [0, 2, 3]] = True
     silent = runs._silent_prns(tracked, el, az, np.ones((n, 6), bool))
     assert silent.tolist() == [False, True, False, False, False, False]
+
+
+def test_gap_takes_the_tle_set_replay_takes(shared_data):
+    """Without --tle, the gap tool's sky for a log is the one run and replay take for the same
+    time (one rule): a 2017 log gets a 2017 set, not the newest bundled one."""
+    from virtualgps.gap import tool
+    from virtualgps.skytime import choose_tle_set
+
+    log = shared_data / "mt3339-static" / "hour_test_1.txt"
+    inp = tool.GapInputs(real=(str(log),), truth=("static",), scene="none", tle=None,
+                         profile="usarsim")
+    runs, _, _, tle, _, _ = tool.load_inputs(inp)
+    t0 = float(runs[0].epochs.t_unix_s[0])
+    assert Path(tle) == choose_tle_set(None, None, t0)[0]
+    assert "2017" in Path(tle).name
+
+
+def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
+    """Too short for guarded blocks: a plain warning, the located gaps alone, no effect."""
+    from virtualgps.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.ephemeris import default_tle_path
+    from virtualgps.gap import selfcheck, tool
+    from virtualgps.scene import load_scene
+
+    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
+    scene = load_scene(scene_dir)
+    tr = selfcheck.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
+                              str(default_tle_path()))
+    lines = tr.real.read_text().splitlines()
+    starts = [i for i, ln in enumerate(lines) if ln.startswith("$GPGGA")]
+    short = tmp_path / "ten.nmea"
+    short.write_text("\n".join(lines[: starts[10]]) + "\n")
+    inp = tool.GapInputs(real=(str(short),), truth=(tr.truth,), scene="none", tle=tr.tle,
+                         profile=str(tr.profile))
+    report, _, _ = tool.diagnose(inp, dg.Options(seeds=5, jobs=1))
+    assert not report["design"]["claims"] and report["effects"] == []
+    assert "too little data for a held-out test" in report["design"]["warnings"][-1]
+    assert report["where"]  # the located gaps still stand
+
+
+@pytest.mark.slow
+def test_real_log_bases_find_an_injected_delay_and_a_wrong_truth(shared_data, tmp_path):
+    """The GSDC drive, untouched and then with a pure output delay injected into its fixes or
+    its truth moved by metres: the delay is the first effect the untouched log did not need,
+    with an interval holding its value; the wrong truth is named as a truth offset and no
+    receiver effect absorbs it."""
+    from virtualgps.gap import selfcheck, selfcheck_real
+
+    rows, note = selfcheck_real.run(shared_data, dg.Options(seeds=12, jobs=2), 1, tmp_path,
+                                    effects=("latency", "truth_offset"))
+    assert note is None
+    lat, off = rows
+    assert lat["success"], lat
+    assert off["success"] and "truth_offset" in off["causes"], off
+    result = selfcheck.summarise(rows, dg.Options(seeds=12))
+    assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}

@@ -203,7 +203,8 @@ def _run_with_errors(err_en: np.ndarray):
 
     n = err_en.shape[0]
     view = SimpleNamespace(reference="truth", valid=np.ones(n, bool),
-                           t_unix_s=np.arange(float(n)), name="r")
+                           t_unix_s=np.arange(float(n)), name="r",
+                           vel_enu_mps=np.zeros((n, 3)), speed_mps=np.zeros(n))
     err = np.zeros((1, n, 3))
     err[0, :, :2] = err_en
     return SimpleNamespace(view=view, err_real=err)

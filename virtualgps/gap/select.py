@@ -21,9 +21,11 @@ The added effect's parameters are then fitted on the selection's fit units with 
 (:func:`identify`): the grid points whose mean gap lies within the seeds' own noise of the best
 are its interval; a parameter whose interval covers its whole grid is not identifiable (the
 default is kept), and a best point at the edge of its grid extends the grid by one step, or is
-reported as a bound.
+reported as a bound. Later rounds try the candidates that helped, refitted around the points
+their folds chose, on top of the effects added so far. At the end an added effect the others
+make redundant (the held-out gap no higher without it) is taken out again.
 
-Selections are generators: they yield the (table, seed set, runs) they need next, and a driver
+Selections are generators: they yield the (table, seed set, units) they need next, and a driver
 (:func:`drive`) fulfils the requests of every selection in one batch.
 """
 
