@@ -38,6 +38,7 @@ from virtualgps.gap.where import (
 )
 
 FIT, HELD, OUTER = 0, 1, 2  # seed sets
+MIN_JOBS_PER_WORKER = 3  # a smaller batch is split by unit
 
 
 @dataclass(frozen=True)
@@ -140,22 +141,32 @@ class Simulator:
                     todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
         if not todo:
             return
+        # A batch of fewer jobs than several per worker leaves workers idle while its slowest
+        # job runs: its jobs are then split by unit (each simulates the run again and scores
+        # one unit; scoring is most of a job).
+        workers = self.workers()
+        split = workers > 1 and len(todo) < MIN_JOBS_PER_WORKER * workers
         profiles: dict[str, Any] = {}
         jobs, owners = [], []
         for (key, seed_set, r), (table, us) in todo.items():
             if key not in profiles:
                 profiles[key] = fx.build(table, self.source)
-            order = sorted(us)
-            jobs.append(GapJob(self.keys[r], profiles[key], self.seeds(seed_set),
-                               tuple(self.units[u].mask for u in order),
-                               prn=seed_set == HELD, bins=seed_set == FIT and self.bins))
-            owners.append((key, seed_set, r, order))
+            groups = [[u] for u in sorted(us)] if split else [sorted(us)]
+            for order in groups:
+                jobs.append(GapJob(self.keys[r], profiles[key], self.seeds(seed_set),
+                                   tuple(self.units[u].mask for u in order),
+                                   prn=seed_set == HELD, bins=seed_set == FIT and self.bins))
+                owners.append((key, seed_set, r, order))
         self.batches.append(len(jobs))
         res = map_jobs(gap_job, jobs, jobs=self.jobs, dask_address=self.dask)
         for (key, seed_set, r, order), scores, j in zip(owners, res, jobs, strict=True):
             self.n_sims += len(j.seeds) * self.runs[r].setup.t_unix_s.size
             for u, sc in zip(order, scores, strict=True):
                 self._scores[(key, seed_set, u)] = sc
+
+    def workers(self) -> int:
+        """The local worker processes jobs go to (1 on a Dask cluster: its size is its own)."""
+        return 1 if self.dask else (self.jobs or os.cpu_count() or 1)
 
     def score(self, table: dict[str, Any], seed_set: int, unit: int) -> UnitScore:
         """A unit's score (after :meth:`request`)."""
