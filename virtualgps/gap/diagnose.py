@@ -169,14 +169,13 @@ def pooled(runs: list[Run], sims: list[Obs], errs: list[np.ndarray]
     return (view, obs(sims), cat([r.err_real for r in runs], axis=1), cat(errs, axis=1))
 
 
-def where_table(runs: list[Run], ens: dict[int, Ensemble]) -> tuple[list[dict], dict, float]:
+def where_table(runs: list[Run], ens: dict[int, Ensemble]) -> tuple[list[dict], float]:
     """The located gaps of every segment (pooled over runs, and per run), judged together.
 
     Returns
     -------
     rows : the report's ``where`` entries (segments holding the same epochs merged, the other
         names in ``same_as``)
-    pooled_parts : {"view", "sims", "err_real", "err_sim"} of the pooled runs (for figures)
     alpha_row : the per-row level the rows were judged at (:func:`virtualgps.gap.where.
         finish_rows`)
     """
@@ -202,8 +201,7 @@ def where_table(runs: list[Run], ens: dict[int, Ensemble]) -> tuple[list[dict], 
             ones = np.ones(r.view.t_unix_s.size, bool)
             rows += judged_rows(segment_stats(r.view, s, r.err_real, e, ones),
                                 f"run:{r.view.name}")
-    rows, alpha = finish_rows(rows)
-    return rows, {"view": view, "sims": sim, "err_real": er, "err_sim": es}, alpha
+    return finish_rows(rows)
 
 
 def not_assessed(runs: list[Run]) -> list[dict]:

@@ -197,21 +197,21 @@ def diagnose(
     choice = None
     if design.claims:
         choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say)
-    where, parts, alpha = where_job.result()
-    judging.shutdown()
-    say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
     final_ens = (ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
                            source)[0] if changed else base_ens)
-    where_final, parts_final, alpha_final = (dg.where_table(runs, final_ens) if changed
-                                             else (where, parts, alpha))
+    final_job = judging.submit(dg.where_table, runs, final_ens) if changed else None
+    # (the figures' arrays are computed meanwhile)
+    figures = figure_data(runs, base_ens, final_ens if changed else None, choice)
+    where, alpha = where_job.result()
+    say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
+    where_final = final_job.result()[0] if changed else where
+    judging.shutdown()
     report = _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, design,
                      choice, causes, where_final, sim, n_base, table, base, final_table)
     unshare(keys)
     report["elapsed_s"] = time.perf_counter() - t_start
-    figures = figure_data(runs, base_ens, final_ens if changed else None, parts,
-                          parts_final if changed else None, report)
     return report, figures, final_table
 
 
@@ -393,7 +393,7 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dt * np.arange(max_lag + 1), autocorrelation(grid, max_lag)
 
 
-def figure_data(runs, base_ens, final_ens, parts, parts_final, report) -> Any:
+def figure_data(runs, base_ens, final_ens, choice) -> Any:
     """Arrays for the report's figures."""
     from virtualgps.report import GapFigureData, RunFigureData
 
@@ -426,10 +426,10 @@ def figure_data(runs, base_ens, final_ens, parts, parts_final, report) -> Any:
     if final_ens is not None:
         fe = errors_enu(v, sim_obs(final_ens[k], v))
         final_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in fe])
-    steps = [e for e in report["effects"] if e.get("accepted")]
-    sel_gaps = report.get("gap_selection") or {}
+    steps = choice.full.steps if choice is not None else []
     labels = ["baseline"] + [f"+{s['name']}" for s in steps]
-    gaps = [sel_gaps.get("baseline", report["gap_baseline"])] + [s["gap_after"] for s in steps]
+    gaps = [choice.full.baseline if choice is not None else math.nan] + [
+        s["gap_after"] for s in steps]
     return GapFigureData(
         runs=tuple(figs), sky_az_deg=az, sky_el_deg=el, sky_disagreement=dis,
         acf_lags_s=lags, real_acf=_pad(real_acf, lags.size), sim_acf=sim_acf,
