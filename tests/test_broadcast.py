@@ -13,8 +13,8 @@ from calendar import timegm
 import numpy as np
 import pytest
 
-from virtualgps import broadcast
-from virtualgps.ephemeris import load_ephemeris_file, load_tle
+from virtualgps.sky import broadcast
+from virtualgps.sky.ephemeris import load_ephemeris_file, load_tle
 
 NAV = "gsdc-2020-05-14-mtv/hour1350.20n"
 TLE = "gsdc-2020-05-14-mtv/gps-ops_2020-05-14T22Z.tle"

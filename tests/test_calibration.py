@@ -28,7 +28,7 @@ from mtk_calibration import (
 )
 from mtk_logs import real_calibration_stats
 
-from virtualgps.profiles import load_profile
+from virtualgps.receiver.profiles import load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -139,8 +139,8 @@ def test_calibrate_tool_rewrites_the_readme_block(tmp_path):
 
 @pytest.fixture(scope="module")
 def magdeburg(shared_data):
-    from virtualgps.config import BUNDLED_SCENES_DIR
-    from virtualgps.scene import load_scene
+    from virtualgps.run.config import BUNDLED_SCENES_DIR
+    from virtualgps.sky.scene import load_scene
 
     return shared_data, load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
 

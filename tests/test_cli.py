@@ -17,8 +17,8 @@ import pynmea2
 import pytest
 from pynmeagps import NMEAReader
 
-from virtualgps import config, replay
 from virtualgps.cli import main
+from virtualgps.run import config, replay
 
 T0 = 1490712768.0  # 2017-03-28T14:52:48Z, the 2017-03-28 Magdeburg waypoint logs
 
@@ -182,7 +182,7 @@ def test_an_interrupted_replay_says_how_far_it_got_and_leaves_whole_epochs(tmp_p
 FAULTS = """
 import resource, sys
 import numpy as np
-from virtualgps.replay import keep_freed_memory
+from virtualgps.run.replay import keep_freed_memory
 applied = keep_freed_memory() if sys.argv[1] == "keep" else None
 np.ones(1)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -416,7 +416,7 @@ def test_a_live_run_says_where_poses_go_and_when_none_has_come(tmp_path, monkeyp
 def test_a_run_whose_line_cannot_carry_its_rate_says_so_and_counts_the_loss(tmp_path, caplog):
     """10 Hz at 9600 baud with a client reading: the line warning, and the closing line counts
     the epochs dropped unread; a run nobody reads counts none (nobody missed them)."""
-    from virtualgps import daemon
+    from virtualgps.run import daemon
 
     daemon._LINE_WARNED.clear()
     link = tmp_path / "gps"

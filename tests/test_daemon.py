@@ -12,12 +12,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from virtualgps import daemon, nmea
-from virtualgps.config import BUNDLED_SCENES_DIR, make_receiver, resolve
-from virtualgps.ephemeris import load_tle
-from virtualgps.profiles import load_profile
-from virtualgps.receiver import Georef
-from virtualgps.scene import load_scene
+from virtualgps.device import nmea
+from virtualgps.receiver.core import Georef
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.run import daemon
+from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve
+from virtualgps.sky.ephemeris import load_tle
+from virtualgps.sky.scene import load_scene
 
 START = 1490712768.0  # 2017-03-28T14:52:48Z
 
@@ -100,7 +101,7 @@ def test_live_loop_fix_rules_and_epoch_times(receiver):
 def test_a_line_too_slow_for_the_epochs_is_warned_of_once(monkeypatch, caplog):
     monkeypatch.setattr(daemon, "_LINE_WARNED", set())
     sizes = [400] * 10  # 400 bytes at 10 Hz: 40,000 bits a second, 8N1
-    with caplog.at_level("WARNING", logger="virtualgps.daemon"):
+    with caplog.at_level("WARNING", logger="virtualgps.run.daemon"):
         assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)
         assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)  # too slow, but said already
         assert not daemon.warn_if_line_too_slow(sizes, 10.0, 57600)
@@ -122,7 +123,7 @@ def test_the_live_loop_warns_when_its_line_cannot_carry_the_rate(receiver, monke
                                    clock, cfg.profile.pose_timeout_s)
     sink = Sink()
     sink.baud = baud
-    with caplog.at_level("WARNING", logger="virtualgps.daemon"):
+    with caplog.at_level("WARNING", logger="virtualgps.run.daemon"):
         daemon.run_daemon(rx, provider, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea),
                           clock, np.random.default_rng(0), threading.Event(), max_epochs=12)
     sizes = [len(e) for e in sink.epochs[1:]]
@@ -134,7 +135,7 @@ def test_a_fix_interval_the_new_baud_cannot_carry_is_refused(receiver):
     """$PMTK251 to 9600 baud, then (in a later read) $PMTK220 for 100 ms epochs of ~400
     bytes: MTK firmware refuses the interval the line cannot carry (PMTK001,220,2); the line
     check that follows the baud change must not make the link forget the epochs' size."""
-    from virtualgps import mtk
+    from virtualgps.device import mtk
 
     cfg, rx = receiver
     clock = daemon.SimClock(START)
@@ -172,7 +173,7 @@ def test_demo_lap_walks_the_loop_at_the_set_speed():
 def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     from dataclasses import replace
 
-    from virtualgps import mtk
+    from virtualgps.device import mtk
 
     _, rx = receiver
     on = replace(mtk.default_settings(("GGA",), {}, 1.0, 38400), dgps_mode=2, sbas_enabled=True,

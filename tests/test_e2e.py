@@ -167,8 +167,8 @@ def sky_msgs(messages: list[dict]) -> list[dict]:
 @pytest.fixture(scope="module")
 def magdeburg_antenna():
     """A pose on open ground on the Magdeburg campus: the first demo waypoint of the scene."""
-    from virtualgps.config import BUNDLED_SCENES_DIR
-    from virtualgps.scene import load_scene
+    from virtualgps.run.config import BUNDLED_SCENES_DIR
+    from virtualgps.sky.scene import load_scene
 
     scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
     return scene, np.asarray(scene.demo_waypoints_enu_m[0], float)
@@ -208,8 +208,8 @@ def test_gpsd_reads_our_fix_and_satellites(tmp_path, magdeburg_antenna):
         assert np.hypot(enu[0], enu[1]) < 30.0, tpv
 
     # The same satellites as our GSV: gpsd's SKY lists what GSV listed; compare with our sky.
-    from virtualgps import config
-    from virtualgps.sky import compute_sky
+    from virtualgps.receiver.skyview import compute_sky
+    from virtualgps.run import config
 
     cfg = config.resolve({})
     ephem, _ = config.load_ephemeris(cfg, scene.tle_path)

@@ -1,4 +1,4 @@
-"""Tests of virtualgps.ephemeris against independent references.
+"""Tests of virtualgps.sky.ephemeris against independent references.
 
 - skyfield's az/el of the bundled TLE sets (tests/data/skyfield_azel.csv, written by
   tools/make_skyfield_refs.py; skyfield is not imported here);
@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 
 from virtualgps.constants import DAY_S, SIDEREAL_DAY_S
-from virtualgps.ephemeris import (
+from virtualgps.exceptions import ConfigError, InputFileError
+from virtualgps.geodesy import azel_to_enu_unit, ecef_to_enu, enu_to_azel
+from virtualgps.sky.ephemeris import (
     BUNDLED_EPHEMERIS_DIR,
     GPS_SKY_REPEAT_S,
     Constellation,
@@ -35,8 +37,6 @@ from virtualgps.ephemeris import (
     tle_checksum,
     write_lookup_table,
 )
-from virtualgps.exceptions import ConfigError, InputFileError
-from virtualgps.geodesy import azel_to_enu_unit, ecef_to_enu, enu_to_azel
 
 REPO = Path(__file__).resolve().parents[1]
 TLE_2017_03_26 = BUNDLED_EPHEMERIS_DIR / "gps-ops-2017-03-26.tle"
@@ -507,7 +507,7 @@ def test_lookup_table_interpolates_between_rows(c2020):
 
 
 def test_a_time_outside_the_lookup_table_is_named(c2020):
-    from virtualgps.config import coverage_note
+    from virtualgps.run.config import coverage_note
 
     table = build_lookup_table(c2020, c2020.epoch_center_unix_s, 600.0, 60.0)
     first, last = table.coverage_unix_s

@@ -19,11 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from virtualgps import daemon, nmea, posesource
-from virtualgps.config import BUNDLED_SCENES_DIR, load_scene_for, make_receiver, resolve
-from virtualgps.ephemeris import load_tle
+from virtualgps.device import nmea
 from virtualgps.exceptions import ConfigError
-from virtualgps.fleet.members import fleet_members
+from virtualgps.poses import posesource
+from virtualgps.run import daemon
+from virtualgps.run.config import BUNDLED_SCENES_DIR, load_scene_for, make_receiver, resolve
+from virtualgps.run.fleet.members import fleet_members
+from virtualgps.sky.ephemeris import load_tle
 
 START = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the bundled TLE set
 START_ISO = "2017-03-28T14:52:48Z"
@@ -96,7 +98,7 @@ class Sink:
 
 def walk(rid: int) -> daemon.TrackProvider:
     """A different straight walk through the campus for each receiver, from START."""
-    from virtualgps.pose import PoseTrack
+    from virtualgps.poses.pose import PoseTrack
 
     t = START + np.arange(0.0, 60.0, 0.5)
     start = np.array([[-40.0 + 25.0 * rid, -30.0 + 10.0 * rid, 1.5]])
@@ -130,7 +132,7 @@ def run_members(campus, specs, n_epochs):
     for rid, seed, over in specs:
         key = json.dumps(over, sort_keys=True)
         if key not in rxs:  # receivers alike share one Receiver, as the CLI's fleet does
-            from virtualgps.profiles import load_profile
+            from virtualgps.receiver.profiles import load_profile
 
             prof = load_profile(cfg.profile.name, over, flag_overrides={"rate_hz": 10.0})
             rxs[key] = make_receiver(replace(cfg, profile=prof), scene, georef, eph, START)
@@ -162,12 +164,12 @@ def test_each_receiver_of_a_fleet_emits_what_it_emits_alone(campus):
 def test_rows_give_the_bytes_of_one_receiver_simulated_epoch_by_epoch(campus):
     # The live loop simulates receivers as rows (ReceiverRows); one receiver's rows must be
     # what simulate() gives for its epochs one at a time (the code path of replay's batches).
-    from virtualgps.receiver import simulate
-    from virtualgps.receiver_state import initial_state
+    from virtualgps.receiver.core import simulate
+    from virtualgps.receiver.state import initial_state
 
     cfg, scene, georef, eph = campus
     fleet = run_members(campus, [(3, 21, {}), (4, 22, {})], 300)
-    from virtualgps.profiles import load_profile
+    from virtualgps.receiver.profiles import load_profile
 
     prof = load_profile(cfg.profile.name, {}, flag_overrides={"rate_hz": 10.0})
     rx = make_receiver(replace(cfg, profile=prof), scene, georef, eph, START)

@@ -18,8 +18,8 @@ from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
 from virtualgps.gap import runs, select, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
-from virtualgps.pose import PoseTrack
-from virtualgps.profiles import build_profile, load_profile, load_profile_dict
+from virtualgps.poses.pose import PoseTrack
+from virtualgps.receiver.profiles import build_profile, load_profile, load_profile_dict
 
 
 @pytest.fixture(autouse=True)
@@ -154,7 +154,7 @@ def test_selfcheck_sector_lies_where_satellites_pass_low_inside_and_outside():
 
 
 def _sentence(body: str) -> str:
-    from virtualgps.nmea import nmea_checksum
+    from virtualgps.device.nmea import nmea_checksum
 
     return f"${body}*{nmea_checksum(body)}"
 
@@ -374,7 +374,7 @@ def test_gap_takes_the_tle_set_replay_takes(shared_data):
     """Without --tle, the gap tool's sky for a log is the one run and replay take for the same
     time (one rule): a 2017 log gets a 2017 set, not the newest bundled one."""
     from virtualgps.gap import tool
-    from virtualgps.skytime import choose_tle_set
+    from virtualgps.sky.skytime import choose_tle_set
 
     log = shared_data / "mt3339-static" / "hour_test_1.txt"
     inp = tool.GapInputs(real=(str(log),), truth=("static",), scene="none", tle=None,
@@ -387,10 +387,10 @@ def test_gap_takes_the_tle_set_replay_takes(shared_data):
 
 def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
     """Too short for guarded blocks: a plain warning, the located gaps alone, no effect."""
-    from virtualgps.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
-    from virtualgps.ephemeris import default_tle_path
     from virtualgps.gap import selfcheck, tool
-    from virtualgps.scene import load_scene
+    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.sky.ephemeris import default_tle_path
+    from virtualgps.sky.scene import load_scene
 
     scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
     scene = load_scene(scene_dir)

@@ -22,9 +22,9 @@ from mtk_logs import (
 from scipy.signal import lfilter
 from scipy.stats import wasserstein_distance
 
+from virtualgps.device.nmea import format_sentence, nmea_epochs_from_lines
 from virtualgps.gap import metrics as M
-from virtualgps.nmea import format_sentence, nmea_epochs_from_lines
-from virtualgps.records import Fixes
+from virtualgps.receiver.records import Fixes
 
 MILLIMETRE = 1e-3
 CENTIMETRE = 1e-2

@@ -10,11 +10,12 @@ import time
 import numpy as np
 import pytest
 
-from virtualgps import daemon, mtk, nmea
-from virtualgps.config import BUNDLED_SCENES_DIR, make_receiver, resolve
-from virtualgps.ephemeris import load_tle
-from virtualgps.profiles import load_profile
-from virtualgps.receiver import Georef
+from virtualgps.device import mtk, nmea
+from virtualgps.receiver.core import Georef
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.run import daemon
+from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve
+from virtualgps.sky.ephemeris import load_tle
 
 START = 1490712768.0  # 2017-03-28T14:52:48Z
 FIRMWARE = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -361,7 +362,7 @@ def test_without_link_client_bytes_are_read_and_dropped(mtk_receiver):
 
 
 def test_devices_change_baud_at_run_time():
-    from virtualgps import transport
+    from virtualgps.device import transport
 
     with transport.PtyDevice(None, baud=38400) as pty:
         pty.set_baud(115200)

@@ -14,10 +14,10 @@ import pynmea2
 import pynmeagps
 import pytest
 
-from virtualgps import nmea
+from virtualgps.device import nmea
+from virtualgps.device.nmea import MPS_TO_KMH, MPS_TO_KNOTS, NmeaFormat
 from virtualgps.exceptions import ConfigError, InputFileError
-from virtualgps.nmea import MPS_TO_KMH, MPS_TO_KNOTS, NmeaFormat
-from virtualgps.records import Fixes
+from virtualgps.receiver.records import Fixes
 
 # Tolerances, in the units of the fields.
 LATLON_MIN = 1e-4  # minutes of arc: the last printed digit of ddmm.mmmm
@@ -802,11 +802,11 @@ def test_simulated_cold_start_prints_mtks_no_fix_fields_byte_for_byte(shared_dat
     print what tr737A+.log:8 prints after its time: placeholders, the geoid's included."""
     import io
 
-    from virtualgps import pose
-    from virtualgps.ephemeris import default_tle_path, load_tle
-    from virtualgps.profiles import load_profile
-    from virtualgps.receiver import Georef, Receiver
-    from virtualgps.replay import epoch_grid, run_replay
+    from virtualgps.poses import pose
+    from virtualgps.receiver.core import Georef, Receiver
+    from virtualgps.receiver.profiles import load_profile
+    from virtualgps.run.replay import epoch_grid, run_replay
+    from virtualgps.sky.ephemeris import default_tle_path, load_tle
 
     prof = load_profile("holux-m1000", {"cold_start": {"power_on": "cold"}})
     eph = load_tle(default_tle_path())

@@ -16,9 +16,11 @@ import pymap3d
 import pynmea2
 import pytest
 
-from virtualgps import geodesy, nmea, pose
+from virtualgps import geodesy
+from virtualgps.device import nmea
 from virtualgps.exceptions import InputFileError, PoseError
-from virtualgps.pose import Pose, PoseTrack
+from virtualgps.poses import pose
+from virtualgps.poses.pose import Pose, PoseTrack
 
 MM = 1e-3  # metres
 UM_PER_S = 1e-6  # m/s

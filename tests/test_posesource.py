@@ -10,7 +10,7 @@ import time
 import pytest
 
 from virtualgps.exceptions import VirtualGPSError
-from virtualgps.posesource import (
+from virtualgps.poses.posesource import (
     MAX_MESSAGE_BYTES,
     StdinPoseSource,
     TcpPoseSource,

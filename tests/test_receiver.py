@@ -7,10 +7,11 @@ import numpy as np
 import pynmeagps
 import pytest
 
-from virtualgps import geodesy, nmea
-from virtualgps.profiles import load_profile
-from virtualgps.receiver import Georef, Receiver, dop, select_used, simulate, usarsim_sigma_m
-from virtualgps.receiver_state import ReceiverState
+from virtualgps import geodesy
+from virtualgps.device import nmea
+from virtualgps.receiver.core import Georef, Receiver, dop, select_used, simulate, usarsim_sigma_m
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.receiver.state import ReceiverState
 
 GEOREF = Georef(52.14, 11.64, 100.0)
 
@@ -52,7 +53,7 @@ def test_sigma_equals_paper_equations():
 
 
 def test_normals_from_uniforms_are_standard_normals():
-    from virtualgps.errors import normals_from_uniforms
+    from virtualgps.receiver.errors import normals_from_uniforms
 
     rng = np.random.default_rng(7)
     z = normals_from_uniforms(rng.random((100_000, 4)))
@@ -218,7 +219,7 @@ def test_no_pose_gives_no_fix():
 
 
 def test_restart_blocks_the_fix_for_a_ttff_whose_mean_is_the_parameter():
-    from virtualgps.receiver_state import restart
+    from virtualgps.receiver.state import restart
 
     prof = load_profile("holux-m1000", {"cold_start": {"ttff_cold_s": 35.0, "ttff_hot_s": 1.0}})
     rng = np.random.default_rng(11)
@@ -442,7 +443,7 @@ def test_sbas_gives_quality_2_and_smaller_errors():
 def test_two_d_sigmas_with_equal_weights_are_the_2d_dops():
     """The held height as a measurement weighted like a range: with equal range sigmas the
     sigmas are sigma x the 2D DOPs MTK firmware prints (HDOP horizontally, VDOP = 1)."""
-    from virtualgps.errors import wls_fix
+    from virtualgps.receiver.errors import wls_fix
 
     los = geodesy.azel_to_enu_unit([0.0, 90.0, 200.0], [70.0, 30.0, 40.0])
     used = np.ones(3, bool)
@@ -455,7 +456,7 @@ def test_two_d_sigmas_with_equal_weights_are_the_2d_dops():
 def test_reported_sigma_matches_the_error_scatter_and_reaches_gst():
     from pynmeagps import NMEAReader
 
-    from virtualgps import nmea
+    from virtualgps.device import nmea
 
     prof = load_profile("ideal", {"dop_error": {"enabled": True}})
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
@@ -498,7 +499,8 @@ def test_a_static_receiver_prints_doppler_speed_noise_and_a_wandering_course():
     """Range-rate errors (sigma at the zenith x the UERE's elevation shape, sigma_i / sigma_z)
     through the same WLS (weights 1 / sigma_i^2): the velocity error's covariance is
     (sigma_rr / sigma_z)^2 (G^T W G)^-1 (issue #11: speeds were 0.00 kn, the course fixed)."""
-    from virtualgps import errors, nmea
+    from virtualgps.device import nmea
+    from virtualgps.receiver import errors
 
     prof = load_profile("ideal", {"dop_error": {"enabled": True, "range_rate_sigma_mps": 0.05,
                                                 "range_rate_tau_s": 1.0}})
@@ -526,7 +528,7 @@ def test_a_static_receiver_prints_doppler_speed_noise_and_a_wandering_course():
 
 
 def test_cold_start_satellites_become_usable_one_by_one_and_the_error_converges():
-    from virtualgps.receiver_state import restart
+    from virtualgps.receiver.state import restart
 
     prof = load_profile("ideal", {"cold_start": {"ttff_cold_s": 10.0, "ttff_sd_frac": 0.0,
                                                  "decode_spread_s": 20.0,
@@ -581,7 +583,7 @@ def test_a_2d_fix_carries_its_held_heights_error_into_east_north():
 
 
 def test_multipath_sigma_decays_with_elevation_and_wall_distance():
-    from virtualgps.errors import multipath_sigma_m
+    from virtualgps.receiver.errors import multipath_sigma_m
 
     el = np.array([0.0, 15.0, 30.0, 60.0])
     # Next to a wall (d = 0): sigma_m exp(-el / el0).
@@ -597,7 +599,7 @@ def test_multipath_sigma_decays_with_elevation_and_wall_distance():
 
 def _mp_sky(wall_dist_m, blocked):
     """A handmade Sky of six satellites for position_errors, the antenna wall_dist_m from a wall."""
-    from virtualgps.sky import Sky
+    from virtualgps.receiver.skyview import Sky
 
     az = np.array([0.0, 70.0, 140.0, 210.0, 280.0, 330.0])
     el = np.array([80.0, 10.0, 25.0, 40.0, 15.0, 55.0])
@@ -612,9 +614,9 @@ def _mp_sky(wall_dist_m, blocked):
 def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     """The fix error is the WLS solution of sigma(el, d) z on the unblocked satellites (the
     first epoch draws the stationary process: x = z), and nothing beyond max_dist_m."""
-    from virtualgps import errors
-    from virtualgps.receiver import error_processes, position_errors
-    from virtualgps.receiver_state import draw_layout
+    from virtualgps.receiver import errors
+    from virtualgps.receiver.core import error_processes, position_errors
+    from virtualgps.receiver.state import draw_layout
 
     mp = {"enabled": True, "sigma_m": 4.0, "el0_deg": 15.0, "max_dist_m": 30.0}
     on = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE}, "multipath": mp})
@@ -674,7 +676,7 @@ def _mp_run(prof, sky, n, chunk, seed):
 def test_multipath_autocorrelation_is_1_over_e_at_tau_and_its_spread_the_sigma():
     """Open sky with open_sky_factor 1: constant sigma_m exp(-el / el0) per satellite, so each
     axis of the fix error is a fixed mix of first-order Gauss-Markov processes."""
-    from virtualgps import errors
+    from virtualgps.receiver import errors
 
     tau = 20.0
     prof = load_profile("ideal", {"dop_error": {"enabled": True, **QUIET_UERE},
@@ -757,7 +759,7 @@ def test_gauss_markov_processes_together_equal_the_plain_recursion_to_the_bit(
     """Sets with their own correlation times and widths, run in one pass (the receiver's
     fades, range errors and range rates), give each set's plain recursion to the bit, in a
     batch with a gap (runs of one coefficient) and epoch by epoch (the live loop)."""
-    from virtualgps import errors
+    from virtualgps.receiver import errors
 
     monkeypatch.setattr(errors, "_loop_epochs",
                         errors.LOOP_EPOCHS_BEFORE_LFILTER + 1 if lfilter else 0)
@@ -790,7 +792,7 @@ def test_gauss_markov_processes_together_equal_the_plain_recursion_to_the_bit(
 
 
 def test_first_order_recursion_batch_equals_its_epochs_to_the_bit():
-    from virtualgps.errors import first_order_recursion
+    from virtualgps.receiver.errors import first_order_recursion
 
     rng = np.random.default_rng(4)
     u = rng.standard_normal((500, 3))

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from virtualgps import report as rp
+from virtualgps.gap import report as rp
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from virtualgps import satnodes
-from virtualgps.ephemeris import BUNDLED_EPHEMERIS_DIR, load_tle
-from virtualgps.satnodes import NODE_STEP_S, SatNodes, lagrange_weights
+from virtualgps.sky import satnodes
+from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR, load_tle
+from virtualgps.sky.satnodes import NODE_STEP_S, SatNodes, lagrange_weights
 
 
 @pytest.fixture(scope="module")

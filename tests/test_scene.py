@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from virtualgps import geodesy
-from virtualgps.config import BUNDLED_SCENES_DIR
 from virtualgps.exceptions import InputFileError
-from virtualgps.scene import CLASS_FOLIAGE, CLASS_IGNORE, CLASS_OCCLUDER, Scene, load_scene
+from virtualgps.run.config import BUNDLED_SCENES_DIR
+from virtualgps.sky.scene import CLASS_FOLIAGE, CLASS_IGNORE, CLASS_OCCLUDER, Scene, load_scene
 
 TEST_SCENE = BUNDLED_SCENES_DIR / "test-wall"
 # Wall1 of the test scene (tools/make_test_scene.py): east -20..20, north 30..30.5, up 0..12.
@@ -174,7 +174,7 @@ def test_parsed_meshes_are_cached_by_content(tmp_path, monkeypatch):
     """Issue #9: the parsed mesh is kept in the user cache, keyed by the file's content; a
     cached load gives the same arrays, an edited file is parsed afresh, a broken cache file is
     rebuilt."""
-    from virtualgps import scene as sc
+    from virtualgps.sky import scene as sc
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     obj = tmp_path / "m.obj"

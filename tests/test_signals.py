@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from tests.test_receiver import GEOREF, FixedSky, WallOnAzimuth
-from virtualgps import signals
-from virtualgps.profiles import load_profile
-from virtualgps.receiver import Receiver, simulate
-from virtualgps.receiver_state import ReceiverState
+from virtualgps.receiver import signals
+from virtualgps.receiver.core import Receiver, simulate
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.receiver.state import ReceiverState
 
 
 def test_tracking_hysteresis_by_hand():
@@ -149,7 +149,7 @@ f 13 14 15 16
 
 def _walls_scene(tmp_path_factory, name: str, obj: str):
     """A scene of the given OBJ text with east/north/up axes near Magdeburg."""
-    from virtualgps.scene import load_scene
+    from virtualgps.sky.scene import load_scene
 
     d = tmp_path_factory.mktemp(name)
     (d / "walls.obj").write_text(obj)
@@ -160,7 +160,7 @@ def _walls_scene(tmp_path_factory, name: str, obj: str):
 
 
 def _facades(scene):
-    from virtualgps.scene import CLASS_OCCLUDER
+    from virtualgps.sky.scene import CLASS_OCCLUDER
 
     sel = scene.face_class == CLASS_OCCLUDER
     return signals.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
@@ -196,7 +196,7 @@ def test_nlos_excess_path_equals_the_image_method(two_walls):
 
 def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls):
     from virtualgps import geodesy
-    from virtualgps.receiver import Georef
+    from virtualgps.receiver.core import Georef
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 
@@ -303,8 +303,8 @@ def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
 
 
 def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
-    from virtualgps.receiver import Georef, expected_cn0_dbhz
-    from virtualgps.sky import compute_sky
+    from virtualgps.receiver.core import Georef, expected_cn0_dbhz
+    from virtualgps.receiver.skyview import compute_sky
 
     g = Georef(narrow_reflector.lat_deg, narrow_reflector.lon_deg, narrow_reflector.alt_hae_m)
 
@@ -333,10 +333,10 @@ def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
 
 def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
     from virtualgps import geodesy
-    from virtualgps.config import BUNDLED_SCENES_DIR
-    from virtualgps.receiver import Georef
-    from virtualgps.scene import load_scene
-    from virtualgps.sky import compute_sky
+    from virtualgps.receiver.core import Georef
+    from virtualgps.receiver.skyview import compute_sky
+    from virtualgps.run.config import BUNDLED_SCENES_DIR
+    from virtualgps.sky.scene import load_scene
 
     scene = load_scene(BUNDLED_SCENES_DIR / "test-wall")
     # Tree1's crown: east 20..26, north -20..-14, up 3..9 (tools/make_test_scene.py).
@@ -379,7 +379,7 @@ def test_wall_distance_is_to_the_nearest_footprint_above_the_antenna(two_walls):
 
 
 def test_multipath_in_the_receiver_acts_near_a_wall_and_not_far_from_it(two_walls):
-    from virtualgps.receiver import Georef
+    from virtualgps.receiver.core import Georef
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 

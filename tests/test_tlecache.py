@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from virtualgps import tlecache
-from virtualgps.ephemeris import default_tle_path
+from virtualgps.sky import tlecache
+from virtualgps.sky.ephemeris import default_tle_path
 
 T_2020 = "2020-05-14T22:30:00Z"  # the bundled 2020 set's day
 

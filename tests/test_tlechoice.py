@@ -1,6 +1,6 @@
 """One rule picks the TLE set (issue #21): ``--tle`` wins, else the set whose epoch lies nearest
 the run's start among the scene's, the bundled and the fetched sets; ``run`` and ``replay`` say
-which in one line, and choose as :func:`virtualgps.skytime.choose_tle_set` does. Also: a plain
+which in one line, and choose as :func:`virtualgps.sky.skytime.choose_tle_set` does. Also: a plain
 install draws figures, yet importing the command never imports matplotlib."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from virtualgps import ephemeris as eph
-from virtualgps import skytime
-from virtualgps.config import parse_time
 from virtualgps.exceptions import ConfigError
+from virtualgps.run.config import parse_time
+from virtualgps.sky import ephemeris as eph
+from virtualgps.sky import skytime
 
 REPO = Path(__file__).resolve().parents[1]
 EPH = REPO / "ephemeris"
@@ -143,7 +143,7 @@ def _ephemeris_line(stderr: str) -> str:
 
 
 def test_replay_and_run_choose_as_choose_tle_set_and_say_so(tmp_path):
-    from virtualgps.scene import load_scene
+    from virtualgps.sky.scene import load_scene
 
     scene_tle = load_scene(MAGDEBURG).tle_path
     poses = tmp_path / "walk.jsonl"

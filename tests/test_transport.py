@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from virtualgps.device.transport import FileSink, PtyDevice, SerialDevice
 from virtualgps.exceptions import ConfigError, VirtualGPSError
-from virtualgps.transport import FileSink, PtyDevice, SerialDevice
 
 SENTENCE = re.compile(rb"\$EP,(\d{6}),x*\r\n")
 ATTACH_S = 0.2  # the writer notices a new client within 50 ms; leave margin

@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from virtualgps import nmea
-from virtualgps.records import Fixes
+from virtualgps.device import nmea
+from virtualgps.receiver.records import Fixes
 
 
 def synthetic_fixes(n_t: int, n_sat: int = 12, n_used: int = 8, seed: int = 1) -> Fixes:

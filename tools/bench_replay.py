@@ -47,11 +47,13 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps import config, nmea, pose, replay
 from virtualgps.cli import main as cli_main
-from virtualgps.daemon import LoopProvider, demo_lap
-from virtualgps.receiver import simulate
-from virtualgps.receiver_state import ReceiverState
+from virtualgps.device import nmea
+from virtualgps.poses import pose
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.state import ReceiverState
+from virtualgps.run import config, replay
+from virtualgps.run.daemon import LoopProvider, demo_lap
 
 START_UNIX_S = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the Magdeburg waypoint logs
 
@@ -226,7 +228,9 @@ def bench_breakdown() -> None:
     """The hour at 10 Hz replayed in-process (``virtualgps replay``), with the sky's parts
     timed where they are called: CPU seconds of the calling thread (the skies run in a second
     thread beside the main one, which on one core interleave), summed over the run's chunks."""
-    from virtualgps import replay, satnodes, scene, signals
+    from virtualgps.receiver import signals
+    from virtualgps.run import replay
+    from virtualgps.sky import satnodes, scene
 
     spent: dict[str, float] = {}  # in the order registered
 

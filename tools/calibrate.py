@@ -57,8 +57,7 @@ from mtk_logs import (
     real_calibration_stats,
 )
 
-from virtualgps.config import BUNDLED_SCENES_DIR
-from virtualgps.ephemeris import load_tle
+from virtualgps.device.nmea import read_nmea_epochs
 from virtualgps.gap.metrics import (
     autocorrelation,
     errors_enu_m,
@@ -66,9 +65,10 @@ from virtualgps.gap.metrics import (
     median_position,
     to_regular_grid,
 )
-from virtualgps.nmea import read_nmea_epochs
-from virtualgps.profiles import load_profile
-from virtualgps.scene import load_scene
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.run.config import BUNDLED_SCENES_DIR
+from virtualgps.sky.ephemeris import load_tle
+from virtualgps.sky.scene import load_scene
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 START, END = "<!-- calibration:start -->", "<!-- calibration:end -->"
@@ -207,7 +207,7 @@ def plot(profile, data: Path, path: Path, site=None, car=None) -> None:
     ax[0, 0].set(xlabel="horizontal error about the median fix (m)", ylabel="CDF", xlim=(0, 20))
     ax[0, 1].axhline(np.exp(-1), color="0.6", lw=0.8)
     ax[0, 1].set(xlabel="lag (s)", ylabel="autocorrelation of the E/N error")
-    from virtualgps.signals import antenna_gain_db
+    from virtualgps.receiver.signals import antenna_gain_db
 
     ct = profile.cn0_tracking
     el = np.linspace(0, 90, 91)

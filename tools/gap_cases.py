@@ -39,7 +39,7 @@ def case_inputs(case: str, data: Path) -> tool.GapInputs:
     if case == "magdeburg":
         from mtk_calibration import waypoint_truths
 
-        from virtualgps.scene import load_scene
+        from virtualgps.sky.scene import load_scene
 
         logs, truths = waypoint_truths(data, load_scene(MAGDEBURG_SCENE))
         return tool.GapInputs(

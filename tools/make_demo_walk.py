@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from virtualgps import geodesy
-from virtualgps.scene import load_scene
+from virtualgps.sky.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
 MARKERS = Path(sys.argv[1]) if len(sys.argv) > 1 else (

@@ -1,6 +1,6 @@
 """Rebuild tests/data/skyfield_azel.csv: skyfield's azimuth/elevation of every satellite of each
 bundled TLE set, at a table of sites and times, as an independent reference for
-virtualgps.ephemeris + virtualgps.geodesy.
+virtualgps.sky.ephemeris + virtualgps.geodesy.
 
 Usage: python tools/make_skyfield_refs.py [--out tests/data/skyfield_azel.csv]
 

@@ -10,7 +10,7 @@ through, and :func:`virtualgps.gap.metrics.summary` computes the same statistics
   epoch to its last; the satellites come from the 2017-03-26 CelesTrak set (15 days after the
   log; it reproduces the log's GSV angles to about 0.4 deg, SOURCES.md), propagated straight to
   the log's time (no sky shift: SGP4 is better than a shift for at least 50 days,
-  :func:`virtualgps.ephemeris.sidereal_shift_s`). No scene: the log holds no map.
+  :func:`virtualgps.sky.ephemeris.sidereal_shift_s`). No scene: the log holds no map.
 - M-241 car track (2008): the antenna follows the logged positions (their own error, a few
   metres, is irrelevant to satellite counts and HDOP). No TLE of 2008 is at hand, so the track
   is replayed at the same UTC time of day on several days around that set's epoch
@@ -44,15 +44,17 @@ from mtk_logs import (
     read_mtk_logger_csv,
 )
 
-from virtualgps import geodesy, nmea, pose
-from virtualgps.ephemeris import Constellation, load_tle
+from virtualgps import geodesy
+from virtualgps.device import nmea
+from virtualgps.device.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
 from virtualgps.gap.ingest import take_epochs
 from virtualgps.gap.metrics import ELEVATION_BINS_DEG, median_position, summary
-from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea_epochs
-from virtualgps.profiles import Profile, load_profile
-from virtualgps.receiver import Georef, Receiver
-from virtualgps.replay import epoch_grid, run_replay, track_in_scene
-from virtualgps.sky import compute_sky
+from virtualgps.poses import pose
+from virtualgps.receiver.core import Georef, Receiver
+from virtualgps.receiver.profiles import Profile, load_profile
+from virtualgps.receiver.skyview import compute_sky
+from virtualgps.run.replay import epoch_grid, run_replay, track_in_scene
+from virtualgps.sky.ephemeris import Constellation, load_tle
 
 # The TLE set nearest the MT3339 hour (2017-03-11) among ../shared/data (SOURCES.md).
 CALIBRATION_TLE = "magdeburg-campus/tle/gps-ops.2017-03-26.tle.txt"
@@ -171,7 +173,7 @@ def replay_epochs(
 
     Returns
     -------
-    epochs : :class:`virtualgps.nmea.NmeaEpochs` of the simulated receiver's output
+    epochs : :class:`virtualgps.device.nmea.NmeaEpochs` of the simulated receiver's output
     """
     rx = Receiver(profile=profile, ephemeris=ephemeris, scene=None, georef=georef)
     return replay_epochs_in(rx, track_in_scene(track, georef), seed)
@@ -188,7 +190,7 @@ def replay_epochs_in(rx: Receiver, track: pose.PoseTrack, seed: int) -> NmeaEpoc
 
     Returns
     -------
-    epochs : :class:`virtualgps.nmea.NmeaEpochs` of the simulated receiver's output
+    epochs : :class:`virtualgps.device.nmea.NmeaEpochs` of the simulated receiver's output
     """
     grid = epoch_grid(track.t_unix_s, rx.profile.rate_hz, None)
     out = io.BytesIO()
@@ -344,7 +346,7 @@ def capture_bins(profile: Profile, shared_data_dir: str | Path) -> list[dict[str
     (tracked satellite-epochs), ``real_median_dbhz``, ``model_median_dbhz``,
     ``real_min_dbhz``/``real_max_dbhz`` (the lowest and highest of the captures' own medians)
     """
-    from virtualgps.signals import antenna_gain_db
+    from virtualgps.receiver.signals import antenna_gain_db
 
     ct = profile.cn0_tracking
     el_all, cn0_all, which = [], [], []

@@ -4,16 +4,16 @@ Owns the real logs used to calibrate receiver profiles (``../shared/data``, see 
 ``SOURCES.md``) and :func:`real_calibration_stats`, the "real" column of the calibration table:
 
 - NMEA logs (mt3339-static/hour_test_1.txt, the gpsd-mtk captures) are read as epochs by
-  :func:`virtualgps.nmea.read_nmea_epochs`, the one NMEA log reader (it reads our own output
+  :func:`virtualgps.device.nmea.read_nmea_epochs`, the one NMEA log reader (it reads our own output
   back too).
 - :func:`read_mtk_logger_csv`: the GPSBabel ``mtk_logger`` CSV export of an MTK data logger
   (Holux M-241, Qstarz BT-Q1000XT): position, height, speed, DOPs, satellites used (in view),
   and, where logged, per-satellite SNR with ``#`` marking the used ones.
 
-Both records (:class:`virtualgps.nmea.NmeaEpochs`, :class:`LoggerTrack`) expose the attributes
-:func:`virtualgps.gap.metrics.summary` reads (``t_unix_s``, ``lat_deg``, ``lon_deg``, ``quality``,
-``hdop``, ``sats_used``, ``sats_in_view``, ...), with the names and shapes of
-:class:`virtualgps.records.Fixes`, so real and simulated epochs go through the same code.
+Both records (:class:`virtualgps.device.nmea.NmeaEpochs`, :class:`LoggerTrack`) expose the
+attributes :func:`virtualgps.gap.metrics.summary` reads (``t_unix_s``, ``lat_deg``, ``lon_deg``,
+``quality``, ``hdop``, ``sats_used``, ``sats_in_view``, ...), with the names and shapes of
+:class:`virtualgps.receiver.records.Fixes`, so real and simulated epochs go through the same code.
 Corrupt lines are skipped and counted (``n_bad``), never raised: one bad line must not lose an
 hour of log.
 """
@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from virtualgps.device.nmea import MPS_TO_KMH, read_nmea_epochs
 from virtualgps.exceptions import InputFileError
 from virtualgps.gap.metrics import count_stats, summary
-from virtualgps.nmea import MPS_TO_KMH, read_nmea_epochs
-from virtualgps.records import QUALITY_DGPS, QUALITY_GPS, QUALITY_NONE
+from virtualgps.receiver.records import QUALITY_DGPS, QUALITY_GPS, QUALITY_NONE
 
 # The real logs of the calibration (paths below ../shared/data; SOURCES.md).
 MT3339_STATIC_LOG = "mt3339-static/hour_test_1.txt"

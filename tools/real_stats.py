@@ -37,8 +37,8 @@ from mtk_logs import (
     real_calibration_stats,
 )
 
+from virtualgps.device.nmea import read_nmea_epochs
 from virtualgps.gap.metrics import summary
-from virtualgps.nmea import read_nmea_epochs
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

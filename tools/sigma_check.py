@@ -14,10 +14,10 @@ import argparse
 import numpy as np
 
 from virtualgps import geodesy
-from virtualgps.ephemeris import default_tle_path, load_tle
-from virtualgps.profiles import load_profile
-from virtualgps.receiver import Georef, Receiver, simulate
-from virtualgps.receiver_state import ReceiverState
+from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.profiles import load_profile
+from virtualgps.receiver.state import ReceiverState
+from virtualgps.sky.ephemeris import default_tle_path, load_tle
 
 
 def main() -> None:

@@ -244,8 +244,8 @@ def _fleet_status(receivers, last: dict) -> str:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from virtualgps import daemon
-    from virtualgps.fleet.run import build_fleet
+    from virtualgps.run import daemon
+    from virtualgps.run.fleet.run import build_fleet
 
     if args.duration is not None and not args.duration > 0:  # (0 used to mean "for ever")
         raise VirtualGPSError(f"--duration must be positive seconds, got {args.duration:g}")
@@ -329,7 +329,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from virtualgps import config, nmea, pose, replay
+    from virtualgps.device import nmea
+    from virtualgps.poses import pose
+    from virtualgps.run import config, replay
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
@@ -402,8 +404,9 @@ def _progress_bar(stream):
 
 
 def cmd_sky(args: argparse.Namespace) -> int:
-    from virtualgps import config, geodesy
-    from virtualgps.sky import compute_sky
+    from virtualgps import geodesy
+    from virtualgps.receiver.skyview import compute_sky
+    from virtualgps.run import config
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
@@ -454,7 +457,7 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
     sky-mask bin: the ``foliage`` effect), ``visible``. ``cn0_dbhz`` is the
     arriving signal's C/N0 without fading (null where none).
     """
-    from virtualgps.receiver import expected_cn0_dbhz
+    from virtualgps.receiver.core import expected_cn0_dbhz
 
     cn0 = expected_cn0_dbhz(rx.profile, sky)
     rows = []
@@ -558,7 +561,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
 
 
 def cmd_ephemeris(args: argparse.Namespace) -> int:
-    from virtualgps import tlecache
+    from virtualgps.sky import tlecache
 
     if args.action == "fetch":
         c = tlecache.fetch(args.url or tlecache.CELESTRAK_GPS_URL)

@@ -5,7 +5,7 @@ parameter values each is tried with, and how a candidate becomes a profile.
 candidate's grid point is a small table of profile keys (``{"correlated_error": {"enabled":
 True, "tau_s": 120.0, ...}}``) merged into the profile under test. A candidate's parameters are
 axes; its grid is their product, spanning the values they take in real receivers (sources in
-:mod:`virtualgps.profiles`), evenly on the scale each is judged on (geometric for times and
+:mod:`virtualgps.receiver.profiles`), evenly on the scale each is judged on (geometric for times and
 scales). Its default, the point kept when the data cannot tell the points apart, is the
 profile's own value where the profile's table names the key, else the grid's centre: never a
 value fitted on anyone's log. An axis whose best point lies at the grid's edge can be extended
@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from virtualgps.profiles import build_profile, merge
+from virtualgps.receiver.profiles import build_profile, merge
 
 # Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
 EFFECT_NAMES = (
@@ -380,7 +380,7 @@ def apply(profile: dict[str, Any], overrides: dict[str, dict[str, Any]]) -> dict
 
 
 def build(profile: dict[str, Any], source: str = "<gap>"):
-    """:func:`virtualgps.profiles.build_profile` of a merged table."""
+    """:func:`virtualgps.receiver.profiles.build_profile` of a merged table."""
     return build_profile(profile, source)
 
 

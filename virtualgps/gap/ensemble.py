@@ -6,7 +6,7 @@ ensemble job (:class:`EnsembleJob`: a run, a profile and some seeds) can go to a
 process or a Dask worker. Workers load the scene and the TLE set once (by path) and keep each
 run's sky (satellites, rays, reflections: what does not depend on the random numbers) between
 jobs, so fitting an effect's parameters over a grid costs only the random part of the receiver
-(:func:`virtualgps.receiver.simulate` with ``sky=``). Every seed is its own generator, so an
+(:func:`virtualgps.receiver.core.simulate` with ``sky=``). Every seed is its own generator, so an
 ensemble's result does not depend on how its seeds are split into jobs or where they run.
 """
 
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps.profiles import Profile
-from virtualgps.receiver import Georef, Receiver, simulate
-from virtualgps.receiver_state import initial_state, running_state
-from virtualgps.sky import Sky, compute_sky
+from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.skyview import Sky, compute_sky
+from virtualgps.receiver.state import initial_state, running_state
 
 # A worker keeps at most this many skies (one per run and sky-relevant profile settings).
 SKY_CACHE_SIZE = 48
@@ -137,7 +137,7 @@ def _scene(path: str | None):
     if path is None:
         return None
     if path not in _SCENES:
-        from virtualgps.scene import load_scene
+        from virtualgps.sky.scene import load_scene
 
         _SCENES[path] = load_scene(path)
     return _SCENES[path]
@@ -145,7 +145,7 @@ def _scene(path: str | None):
 
 def _ephemeris(path: str):
     if path not in _EPHEMERIDES:
-        from virtualgps import ephemeris as eph
+        from virtualgps.sky import ephemeris as eph
 
         _EPHEMERIDES[path] = eph.load_ephemeris_file(Path(path))
     return _EPHEMERIDES[path]
@@ -158,7 +158,7 @@ def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
 
 
 def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
-    """The profile settings :func:`virtualgps.sky.compute_sky` depends on."""
+    """The profile settings :func:`virtualgps.receiver.skyview.compute_sky` depends on."""
     mp = profile.multipath
     # (georef: the antenna's geodetic position, hence every direction, follows the conversion)
     return (setup.digest or id(setup), profile.georef, repr(profile.sky),
@@ -199,7 +199,7 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
     -------
     ensemble : the seeds' outputs
     """
-    from virtualgps.errors import prefer_lfilter
+    from virtualgps.receiver.errors import prefer_lfilter
 
     prefer_lfilter()  # an ensemble simulates millions of epochs
     setup, prof = job.setup, job.profile
@@ -239,7 +239,7 @@ def geometry_job(setup: RunSetup) -> Geometry:
     A bare receiver (no effects; foliage neither blocks nor attenuates) gives the geometry, so
     it is the same whatever profile is under test.
     """
-    from virtualgps.profiles import FoliageParams, NlosParams, SkyParams
+    from virtualgps.receiver.profiles import FoliageParams, NlosParams, SkyParams
 
     prof = Profile(name="geometry", sky=SkyParams(elevation_mask_deg=0.0, foliage="ignore"),
                    foliage=FoliageParams(enabled=False), nlos=NlosParams(enabled=False))

@@ -1,6 +1,6 @@
 """Real runs for the gap tool: a real receiver's NMEA log and its truth, read as they come.
 
-Logs are read the way receivers and loggers write them (:func:`virtualgps.nmea.
+Logs are read the way receivers and loggers write them (:func:`virtualgps.device.nmea.
 nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
 types, binary noise, bad checksums, truncated lines, a midnight in the log); nothing raises on a
 bad line: every skipped line is counted by reason and reported. A fix is any GGA quality above
@@ -21,11 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps import geodesy, pose
+from virtualgps import geodesy
+from virtualgps.device.nmea import (
+    NmeaEpochs,
+    nmea_epochs_from_lines,
+    parse_sentence,
+    read_text_lines,
+)
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.gap.metrics import median_position
-from virtualgps.nmea import NmeaEpochs, nmea_epochs_from_lines, parse_sentence, read_text_lines
-from virtualgps.receiver import Georef
+from virtualgps.poses import pose
+from virtualgps.receiver.core import Georef
 
 TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs between unknown
 MOVING_PATH_M = 30.0  # a truth whose path is longer than this "moves": its clock offset is sought

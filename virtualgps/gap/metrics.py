@@ -3,7 +3,7 @@
 Owns the metrics shared by the profile calibration (README table, ``tools/real_stats.py``) and
 the sim-to-real gap tool (DESIGN section 7.1): pure numpy functions of per-epoch arrays, plus
 :func:`summary`, which computes them all for any record holding epochs: the simulator's
-:class:`virtualgps.records.Fixes` and the real-log records of :mod:`mtk_logs`.
+:class:`virtualgps.receiver.records.Fixes` and the real-log records of :mod:`mtk_logs`.
 
 Conventions. Errors are ENU metres in the frame of the reference point (the truth at each epoch,
 or one fixed point such as the median position of a static log). Missing values are NaN (floats)
@@ -506,7 +506,7 @@ def summary(
     ``alt_msl_m`` + ``geoid_sep_m`` or ``alt_hae_m``; ``sats_used`` (else ``used`` (n_t, n_sat)
     summed); ``sats_in_view`` (else ``in_view`` (n_t, n_sat) summed); ``cn0_dbhz`` (n_t, n_sat);
     ``truth_lat_deg``, ``truth_lon_deg``, ``truth_alt_hae_m``. That is
-    :class:`virtualgps.records.Fixes` and the records of :mod:`mtk_logs`.
+    :class:`virtualgps.receiver.records.Fixes` and the records of :mod:`mtk_logs`.
 
     Position, satellite, HDOP and C/N0 statistics are over the epochs with a fix (quality > 0
     and a finite position); availability over all epochs.

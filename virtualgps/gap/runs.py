@@ -25,8 +25,8 @@ from virtualgps.gap.where import (
     printed_step,
     quantize,
 )
-from virtualgps.profiles import Profile
-from virtualgps.receiver import Georef
+from virtualgps.receiver.core import Georef
+from virtualgps.receiver.profiles import Profile
 
 SCENE_REACH_M = 5000.0
 

@@ -37,13 +37,15 @@ from typing import Any
 
 import numpy as np
 
-from virtualgps import geodesy, nmea, pose
+from virtualgps import geodesy
+from virtualgps.device import nmea
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.profiles import load_profile_dict
-from virtualgps.receiver import Georef, Receiver
-from virtualgps.replay import epoch_grid, run_replay
-from virtualgps.sky import compute_sky
+from virtualgps.poses import pose
+from virtualgps.receiver.core import Georef, Receiver
+from virtualgps.receiver.profiles import load_profile_dict
+from virtualgps.receiver.skyview import compute_sky
+from virtualgps.run.replay import epoch_grid, run_replay
 
 DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
 SEED_BASE = 100_000  # pseudo-real seeds lie far from the diagnosis' seeds 0..N
@@ -202,8 +204,8 @@ def _walk_in_scene(scene, rng: np.random.Generator, t: np.ndarray) -> np.ndarray
 def _static_in_scene(scene, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, 3) ENU: a random point near the demo walk 3-10 m from a wall (where buildings block
     and reflect), 1.5 m above the ground."""
-    from virtualgps.scene import CLASS_OCCLUDER
-    from virtualgps.signals import Facades
+    from virtualgps.receiver.signals import Facades
+    from virtualgps.sky.scene import CLASS_OCCLUDER
 
     wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)
     sel = scene.face_class == CLASS_OCCLUDER
@@ -287,7 +289,7 @@ class Trial:
 def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
                open_tle: str) -> Trial:
     """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial."""
-    from virtualgps.ephemeris import load_tle
+    from virtualgps.sky.ephemeris import load_tle
 
     spec = spec_of(label)
     rng = np.random.default_rng([SEED_BASE, _label_index(label), index])
@@ -440,11 +442,11 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
     -------
     result : the ``selfcheck.json`` content
     """
-    from virtualgps import report as rp
-    from virtualgps.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
-    from virtualgps.ephemeris import default_tle_path
+    from virtualgps.gap import report as rp
     from virtualgps.gap import tool
-    from virtualgps.scene import load_scene
+    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.sky.ephemeris import default_tle_path
+    from virtualgps.sky.scene import load_scene
 
     out = Path(out_dir)
     work = out / "work"

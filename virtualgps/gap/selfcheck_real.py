@@ -28,10 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps import geodesy, pose
+from virtualgps import geodesy
+from virtualgps.device.nmea import nmea_checksum, read_text_lines
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap.ingest import read_real_log
-from virtualgps.nmea import nmea_checksum, read_text_lines
+from virtualgps.poses import pose
 
 GSDC = "gsdc-2020-05-14-mtv"
 BASE_PROFILE = "holux-m1000"

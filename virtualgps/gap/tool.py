@@ -16,8 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from virtualgps import ephemeris as eph
-from virtualgps.config import coverage_note
 from virtualgps.exceptions import ConfigError
 from virtualgps.gap import causes as cz
 from virtualgps.gap import diagnose as dg
@@ -30,8 +28,10 @@ from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
 from virtualgps.gap.where import Obs, RunView, autocorr_time_s, errors_enu, tracked_fractions
-from virtualgps.profiles import build_profile, load_profile_dict
-from virtualgps.skytime import choose_tle_set
+from virtualgps.receiver.profiles import build_profile, load_profile_dict
+from virtualgps.run.config import coverage_note
+from virtualgps.sky import ephemeris as eph
+from virtualgps.sky.skytime import choose_tle_set
 
 log = logging.getLogger(__name__)
 
@@ -91,8 +91,8 @@ def load_inputs(inp: GapInputs):
     -------
     runs, scene, scene_path, tle_path, profile_table, profile_source
     """
-    from virtualgps.config import scene_path as resolve_scene
     from virtualgps.gap.ingest import load_run
+    from virtualgps.run.config import scene_path as resolve_scene
 
     if not inp.real:
         raise ConfigError("give at least one --real LOG with its --truth")
@@ -104,7 +104,7 @@ def load_inputs(inp: GapInputs):
     spath = resolve_scene(inp.scene)
     scene = None
     if spath is not None:
-        from virtualgps.scene import load_scene
+        from virtualgps.sky.scene import load_scene
 
         scene = load_scene(spath)
     if inp.tle is not None and not Path(inp.tle).exists():
@@ -130,7 +130,7 @@ def diagnose(
     Returns
     -------
     report : the ``report.json`` content (``calibrated_profile`` left to the writer)
-    figures : :class:`virtualgps.report.GapFigureData`
+    figures : :class:`virtualgps.gap.report.GapFigureData`
     calibrated : the calibrated profile table
     """
     t_start = time.perf_counter()
@@ -360,7 +360,7 @@ def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: st
                   ) -> dict:
     """Write ``report.json``, ``report.html`` and ``calibrated.toml`` into ``out_dir`` (the
     figures drawn on ``jobs`` worker processes, default all cores, or a Dask cluster)."""
-    from virtualgps import report as rp
+    from virtualgps.gap import report as rp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -395,7 +395,7 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def figure_data(runs, base_ens, final_ens, choice) -> Any:
     """Arrays for the report's figures."""
-    from virtualgps.report import GapFigureData, RunFigureData
+    from virtualgps.gap.report import GapFigureData, RunFigureData
 
     figs = []
     for i, r in enumerate(runs):

@@ -1,0 +1,1225 @@
+"""Where NMEA goes: a pseudo-terminal, a serial port, a file or stdout.
+
+Output devices share one small interface (:class:`OutputDevice`): ``write_epoch`` (never waits
+for the client), ``read_available`` (what the client sent us, e.g. gpsd's ``$PMTK`` probes),
+``close``, ``path`` / ``describe()``, and use as a context manager.
+
+- :class:`PtyDevice` — a pseudo-terminal in raw mode at an explicit baud rate, readable by any
+  user, with a stable symlink to its slave side; output paced to the baud rate like a real serial
+  line, and stale output dropped when nobody reads (see the class docstring for the Linux pty
+  behaviour this relies on).
+- :class:`SerialDevice` — a real serial port (or any pyserial URL, e.g. ``loop://`` in tests).
+- :class:`FileSink` — a file, or stdout for ``-``.
+
+Where poses come from is :mod:`virtualgps.poses.posesource`. Only these two modules, the daemon and
+the CLI touch ptys, serial ports and sockets. Nothing here parses NMEA: bytes in, bytes out.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import fcntl
+import logging
+import math
+import os
+import queue
+import select
+import struct
+import sys
+import termios
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO, Self
+
+import serial
+
+from virtualgps.exceptions import ConfigError, VirtualGPSError
+
+__all__ = [
+    "FileSink",
+    "OutputDevice",
+    "PtyDevice",
+    "SerialDevice",
+]
+
+log = logging.getLogger(__name__)
+
+# Largest backlog of client-to-device bytes (PMTK commands) kept for read_available(); a client
+# that floods us loses its oldest bytes rather than growing our memory.
+_RX_MAX_BYTES = 65536
+
+# How often an idle pty writer looks for a reader attaching or leaving. Linux gives no event for
+# "POLLHUP cleared" (poll() reports POLLHUP at once while it holds), so this is polled; 50 ms is
+# far below one epoch at any rate a GPS emits.
+_IDLE_POLL_S = 0.05
+# An attached writer with nothing queued and nothing unread sleeps until an event wakes it; this
+# is only a safety net.
+_IDLE_ATTACHED_S = 1.0
+# Longest time between two measurements of the client's unread bytes while output flows.
+_MEASURE_EVERY_S = 0.25
+
+# Output pacing: write the line's bytes in slices of about this duration, at absolute wake times.
+# 16 ms is how a USB serial adapter hands bytes over (FTDI's default latency timer, AN232B-04),
+# how most GPS mice reach a computer; finer slices cost wake-ups and tell a client nothing more.
+_CHUNK_S = 0.016
+_MAX_CHUNK_BYTES = 1024
+
+# Most unread bytes we let sit in the pty's kernel buffers. TIOCINQ on the slave counts only the
+# line discipline's read buffer (N_TTY_BUF_SIZE = 4096; it reports at most 4095), not the tty
+# flip buffers behind it (~16 KiB more). Keeping our unread share below that buffer keeps the
+# count exact, so the backlog and the age of unread output are known, not guessed.
+_KERNEL_CAP_BYTES = 2048
+
+# How long SerialDevice's writer waits for a stuck port (hardware flow control held, USB adapter
+# gone) before dropping the rest of an epoch. Only the writer thread waits, never the caller.
+_SERIAL_WRITE_TIMEOUT_S = 0.5
+
+# Most client bytes read per wake-up, so a flooding client cannot hold the writer.
+_MAX_READ_BYTES_PER_POLL = 1 << 20
+
+
+# --------------------------------------------------------------------------------------------
+# Output devices
+# --------------------------------------------------------------------------------------------
+
+
+class _Closing:
+    """Context-manager support for anything with ``close()``."""
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class OutputDevice(_Closing, abc.ABC):
+    """Where NMEA bytes go: one epoch at a time, without ever making the caller wait.
+
+    Attributes
+    ----------
+    dropped_bytes : int
+        Bytes handed to ``write_epoch`` that never reached the client (dropped from the queue,
+        flushed from the kernel as stale, or refused by a full port).
+    dropped_epochs : int
+        Whole epochs dropped before any of their bytes were sent.
+    """
+
+    dropped_bytes: int = 0
+    dropped_epochs: int = 0
+
+    @property
+    @abc.abstractmethod
+    def path(self) -> str:
+        """Return what a client opens (link, device, file path, or ``-``)."""
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """Return a one-line description of the device for the user."""
+
+    @abc.abstractmethod
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch's bytes for output; return at once.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch (or a reply such as ``$PMTK001``), sent whole and in order.
+        """
+
+    def read_available(self) -> bytes:
+        """Return what the client sent since the last call, without waiting (``b""`` if none).
+
+        Returns
+        -------
+        bytes
+            Raw bytes, possibly ending mid-line; the caller assembles lines.
+        """
+        return b""
+
+    def fileno(self) -> int | None:
+        """Return a descriptor that turns readable when ``read_available`` has data, or None.
+
+        Returns
+        -------
+        int or None
+            For ``select``; None where the device has no input.
+        """
+        return None
+
+    def set_baud(self, baud: int) -> None:
+        """Change the line rate at run time (a client's ``$PMTK251``); no-op where there is none.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, 8N1.
+        """
+        return None
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the device; calling it again does nothing."""
+
+
+@dataclass
+class _Epoch:
+    data: bytes
+    t_enqueued_s: float  # time.monotonic() when write_epoch received it
+    offset: int = 0  # bytes already handed to the kernel
+
+
+class _EpochQueue:
+    """Epochs waiting to be written, bounded by size and age; the oldest whole epochs go first.
+
+    Not thread-safe: the owning device guards it with its lock. An epoch whose first bytes were
+    already sent is never dropped by ``trim`` (finishing it keeps the client's sentences whole);
+    ``drop_started`` drops its remainder when the client is known to have lost the beginning.
+    """
+
+    def __init__(self, max_bytes: int, max_age_s: float) -> None:
+        self.max_bytes = max_bytes
+        self.max_age_s = max_age_s
+        self.epochs: deque[_Epoch] = deque()
+        self.queued_bytes = 0
+        self.dropped_bytes = 0
+        self.dropped_epochs = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.epochs)
+
+    def put(self, data: bytes, now_s: float) -> None:
+        self.epochs.append(_Epoch(data, now_s))
+        self.queued_bytes += len(data)
+
+    def put_back(self, epochs: list[_Epoch]) -> None:
+        """Queue whole epochs again ahead of the rest, in their order (their bytes were
+        discarded from the kernel unread)."""
+        for e in reversed(epochs):
+            self.epochs.appendleft(_Epoch(e.data, e.t_enqueued_s))
+            self.queued_bytes += len(e.data)
+
+    def trim(self, now_s: float, kernel_bytes: int) -> None:
+        """Drop the oldest unstarted epochs while the backlog is too large or too old.
+
+        The backlog is ``queued_bytes + kernel_bytes`` (unread in the kernel). The newest epoch
+        is kept unless it is itself older than ``max_age_s``: an epoch larger than the whole
+        budget is still sent rather than never.
+        """
+        while True:
+            first = 1 if self.epochs and self.epochs[0].offset else 0
+            if first >= len(self.epochs):
+                return
+            oldest = self.epochs[first]
+            too_old = now_s - oldest.t_enqueued_s > self.max_age_s
+            too_big = self.queued_bytes + kernel_bytes > self.max_bytes
+            if not too_old and (not too_big or first == len(self.epochs) - 1):
+                return
+            del self.epochs[first]
+            self.queued_bytes -= len(oldest.data)
+            self.dropped_bytes += len(oldest.data)
+            self.dropped_epochs += 1
+
+    def drop_started(self) -> None:
+        """Drop the unsent rest of an epoch whose beginning was already sent."""
+        if self.epochs and self.epochs[0].offset:
+            head = self.epochs.popleft()
+            rest = len(head.data) - head.offset
+            self.queued_bytes -= rest
+            self.dropped_bytes += rest
+
+    def peek(self, max_bytes: int) -> bytes:
+        head = self.epochs[0]
+        return head.data[head.offset : head.offset + max_bytes]
+
+    def advance(self, n_bytes: int) -> None:
+        head = self.epochs[0]
+        head.offset += n_bytes
+        self.queued_bytes -= n_bytes
+        if head.offset >= len(head.data):
+            self.epochs.popleft()
+
+
+def _termios_speed(baud: int) -> int:
+    """Return the termios speed constant for ``baud``, or raise ConfigError naming the choices."""
+    speed = getattr(termios, f"B{baud}", None) if isinstance(baud, int) and baud > 0 else None
+    if speed is None:
+        rates = sorted(int(k[1:]) for k in dir(termios) if k[:1] == "B" and k[1:].isdigit())
+        raise ConfigError(
+            f"baud {baud!r} is not a standard serial rate; use one of "
+            f"{', '.join(str(r) for r in rates if r >= 1200)} (the Holux M-1000 uses 38400)"
+        )
+    return speed
+
+
+def _baud_of_speed(speed: int) -> int | None:
+    for key in dir(termios):
+        if key[:1] == "B" and key[1:].isdigit() and getattr(termios, key) == speed:
+            return int(key[1:])
+    return None
+
+
+def _set_raw(fd: int, speed: int) -> None:
+    """Put the terminal ``fd`` in raw 8N1 mode at ``speed`` (a termios B constant).
+
+    Raw because cooked mode maps the CR of every NMEA ``\\r\\n`` to a newline (ICRNL), so clients
+    read ``\\n\\n``, and echoes what the client writes (ECHO), so gpsd would read back its own
+    PMTK probes as if the receiver had sent them.
+    """
+    iflag, oflag, cflag, lflag, _, _, cc = termios.tcgetattr(fd)
+    iflag &= ~(
+        termios.IGNBRK
+        | termios.BRKINT
+        | termios.PARMRK
+        | termios.ISTRIP
+        | termios.INLCR
+        | termios.IGNCR
+        | termios.ICRNL
+        | termios.IXON
+        | termios.IXOFF
+        | termios.IXANY
+        | termios.INPCK
+    )
+    oflag &= ~termios.OPOST
+    lflag &= ~(termios.ECHO | termios.ECHONL | termios.ICANON | termios.ISIG | termios.IEXTEN)
+    cflag &= ~(termios.CSIZE | termios.PARENB | termios.CSTOPB | termios.CRTSCTS)
+    cflag |= termios.CS8 | termios.CREAD | termios.CLOCAL
+    cc[termios.VMIN] = 1
+    cc[termios.VTIME] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, [iflag, oflag, cflag, lflag, speed, speed, cc])
+
+
+def _unread_bytes(fd: int) -> int:
+    """Return TIOCINQ (bytes waiting to be read) of the terminal or socket ``fd``."""
+    return struct.unpack("i", fcntl.ioctl(fd, termios.TIOCINQ, b"\0\0\0\0"))[0]
+
+
+def _make_link(link_path: Path, target: Path) -> None:
+    """Point the symlink ``link_path`` at ``target``, replacing an old symlink atomically."""
+    if os.path.lexists(link_path) and not link_path.is_symlink():
+        raise VirtualGPSError(
+            f"{link_path} exists and is not a symlink; refusing to replace it. Remove it or "
+            f"choose another path with --link"
+        )
+    # symlink + rename: a client never sees the link missing or half made, even when a previous
+    # run's link (dangling after a crash) is being replaced.
+    tmp = link_path.with_name(f".{link_path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        os.symlink(target, tmp)
+        os.replace(tmp, link_path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise VirtualGPSError(f"cannot create the link {link_path} -> {target}: {exc}") from exc
+
+
+class PtyDevice(OutputDevice):
+    """A pseudo-terminal that looks like the receiver's serial port to gpsd and ROS drivers.
+
+    The slave side is put in raw 8N1 mode with ``baud`` in its termios, made readable and
+    writable by any user (as gpsd's gpsfake does), and reached through a stable symlink. A writer
+    (a thread of its own, or the owner's event loop calling :meth:`step`) sends queued epochs at
+    ``baud / 10`` bytes per second (8N1: 10 bits per byte) in small slices at absolute wake
+    times; ``write_epoch`` only appends to a bounded queue.
+
+    Linux pty behaviour this relies on (verified on Linux 6.x, see tests/test_transport.py):
+
+    - While no process has the slave open, ``poll()`` on the master reports POLLHUP and reading
+      the master fails with EIO (once the client's last bytes are read). This only works if we
+      do not keep a slave descriptor open ourselves, so we close ours after configuring it: the
+      termios settings persist, since the open master keeps the tty alive.
+    - Writes to the master while nobody has the slave open are buffered (about 20 KB: 4095 in the
+      line discipline plus the flip buffers), then a non-blocking write fails with EAGAIN and a
+      blocking one hangs. Those bytes survive until a reader opens the slave, which then reads
+      minutes-old output. So the writer never writes while POLLHUP is set, and flushes the
+      slave's input queue (``tcflush(slave, TCIFLUSH)``; it discards the flip buffers too) when
+      a reader leaves and when one arrives.
+    - ``tcflush`` on the *master* does not discard the slave's unread input, and TIOCOUTQ on the
+      master is always 0 (ptys have no ``chars_in_buffer``): the backlog can only be seen and
+      discarded from a slave descriptor. We open one briefly (``O_NOCTTY``, microseconds) while a
+      reader is attached, read TIOCINQ (unread bytes, at most 4095 and lagging a write by the
+      flip-buffer work queue, well under a millisecond) and close it again.
+    - Termios calls on the master act on the slave, so ``termios_baud()`` sees the speed a client
+      such as gpsd set; the pty passes bytes unchanged whatever the speed.
+    - What the client writes arrives on the master (TIOCINQ on the master counts it) and stays
+      readable after the client closes.
+
+    Stale output: the backlog (queued bytes + unread bytes in the kernel) is held to
+    ``max_backlog_s`` of line time by dropping the oldest whole epochs; queued epochs older than
+    ``max_backlog_s`` are dropped too; unread kernel output older than ``max_backlog_s`` (a
+    client that holds the port open but stopped reading) is flushed, together with the rest of
+    the epoch it belonged to, so the client resumes with fresh epochs.
+
+    Parameters
+    ----------
+    link_path : Path or None
+        Stable symlink to create to the slave (e.g. ``./virtualgps0``); None for none.
+    baud : int
+        Line rate in bits per second, a standard termios rate (default 38400, the Holux M-1000).
+    max_backlog_s : float
+        Most output, in seconds of line time, that may wait for a client.
+    chunk_s : float
+        Line time handed to the kernel per wake-up (default 16 ms, a USB serial adapter's
+        latency timer; at most 1 KiB).
+    threaded : bool
+        Run the writer in a thread of its own (default). False: the owner calls :meth:`step`
+        when it is due, as :class:`virtualgps.run.fleet.ptyloop.PtyLoop` does for many devices
+        from one thread.
+
+    Attributes
+    ----------
+    slave_path : Path
+        The slave device, e.g. ``/dev/pts/3``.
+    link_path : Path or None
+    baud : int
+    reader_attached : bool
+        Whether a process had the slave open at the writer's last look.
+    written_bytes : int
+        Bytes handed to the kernel.
+    kernel_flushes : int
+        Times unread output was discarded from the kernel.
+    rx_dropped_bytes : int
+        Client bytes discarded because read_available was not called for too long.
+    alive : bool
+        The writer thread runs while this is True.
+    watch_master : bool
+        Whether the master's events (client bytes, a hang-up) should wake the writer now (set by
+        :meth:`step`; False while no reader is attached, when POLLHUP would wake it at once).
+
+    Raises
+    ------
+    ConfigError
+        For a non-standard baud rate or a non-positive ``max_backlog_s``.
+    VirtualGPSError
+        If ``link_path`` exists and is not a symlink, or the pty cannot be made.
+    """
+
+    def __init__(self, link_path: Path | None, baud: int = 38400, max_backlog_s: float = 2.0,
+                 chunk_s: float = _CHUNK_S, threaded: bool = True):
+        speed = _termios_speed(baud)
+        if not max_backlog_s > 0:
+            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
+        if not 0 < chunk_s <= 1.0:
+            raise ConfigError(f"chunk_s must be seconds in (0, 1], not {chunk_s!r}")
+        self._chunk_s = float(chunk_s)
+        self.baud = baud
+        self.max_backlog_s = float(max_backlog_s)
+        self._bytes_per_s = baud / 10.0  # 8N1: start + 8 data + stop bits per byte
+        self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
+        self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
+        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
+        self._lock = threading.Lock()
+        # Both the writer thread and read_available() drain the master; one at a time, so the
+        # client's bytes keep their order.
+        self._rx_lock = threading.Lock()
+        self._rx = bytearray()
+        self._closed = False
+        self.link_path = Path(link_path) if link_path is not None else None
+        self.reader_attached = False
+        self.written_bytes = 0
+        self.kernel_flushes = 0
+        self.rx_dropped_bytes = 0
+        self._kernel_dropped_bytes = 0
+        self._kernel_unread = 0
+        self._measured_s = -math.inf  # when TIOCINQ was last read (time.monotonic)
+        # Bytes written since the last flush, with when their epoch was queued: (t_monotonic_s,
+        # cumulative end offset). With TIOCINQ this tells the age of the oldest byte the client
+        # has not read yet (an epoch put back after a flush keeps its age).
+        self._sent_total = 0
+        self._sent_log: deque[tuple[float, int]] = deque()
+        # Epochs whose first byte was written since the last flush: (start offset, epoch), so a
+        # flush of stale output can put back the recent epochs it discarded with it.
+        # (At most _KERNEL_CAP_BYTES are unread, a few dozen epochs: older entries are moot.)
+        self._in_kernel: deque[tuple[int, _Epoch]] = deque(maxlen=256)
+        self._peer_error_logged = False
+        self.watch_master = False
+        self._next_send_s = time.monotonic()
+        # Called by write_epoch and set_baud instead of the eventfd when an owner drives step().
+        self.on_wake: Callable[[PtyDevice], None] | None = None
+
+        master_fd, slave_fd = os.openpty()
+        try:
+            self.slave_path = Path(os.ttyname(slave_fd))
+            _set_raw(slave_fd, speed)
+        except BaseException:
+            os.close(master_fd)
+            raise
+        finally:
+            # Not kept open: our own slave descriptor would hide POLLHUP (see class docstring).
+            os.close(slave_fd)
+        try:
+            # Any user may open it (gpsd often runs as user gpsd, ROS as another user).
+            os.chmod(self.slave_path, 0o666)
+        except OSError as exc:
+            log.info("cannot make %s readable by all users: %s", self.slave_path, exc)
+        os.set_blocking(master_fd, False)
+        self._master = master_fd
+        try:
+            if self.link_path is not None:
+                _make_link(self.link_path, self.slave_path)
+            self._wake = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        except BaseException:
+            os.close(master_fd)
+            raise
+        # Turns readable when client bytes wait in _rx (for the daemon's select).
+        self._rx_event = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self.alive = True
+        self._thread: threading.Thread | None = None
+        if threaded:
+            self._thread = threading.Thread(
+                target=self._run, name=f"virtualgps-pty-{self.slave_path.name}", daemon=True
+            )
+            self._thread.start()
+
+    # -- interface ------------------------------------------------------------------------
+
+    @property
+    def path(self) -> str:
+        """Return what clients open: the link if there is one, else the slave device."""
+        return str(self.link_path if self.link_path is not None else self.slave_path)
+
+    def describe(self) -> str:
+        """Return ``/dev/pts/N -> LINK`` (or just the slave path without a link)."""
+        if self.link_path is None:
+            return str(self.slave_path)
+        return f"{self.slave_path} -> {self.link_path}"
+
+    @property
+    def dropped_bytes(self) -> int:  # type: ignore[override]
+        """Return bytes that never reached a client (queue drops and kernel flushes)."""
+        return self._queue.dropped_bytes + self._kernel_dropped_bytes
+
+    @property
+    def dropped_epochs(self) -> int:  # type: ignore[override]
+        """Return whole epochs dropped before any byte of them was sent."""
+        return self._queue.dropped_epochs
+
+    @property
+    def queued_bytes(self) -> int:
+        """Return bytes waiting in our queue (not yet handed to the kernel)."""
+        return self._queue.queued_bytes
+
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch's bytes, sent whole and in order, paced to the baud rate.
+
+        Raises
+        ------
+        VirtualGPSError
+            If the device was closed.
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        if not data:
+            return
+        with self._lock:
+            now_s = time.monotonic()
+            self._queue.put(bytes(data), now_s)
+            self._queue.trim(now_s, self._kernel_unread)
+        self._wake_writer()
+
+    def read_available(self) -> bytes:
+        """Return the bytes the client wrote to the slave since the last call (``b""`` if none).
+
+        Returns
+        -------
+        bytes
+            At most the newest 64 KiB; older bytes are counted in ``rx_dropped_bytes``.
+        """
+        if self._closed:
+            return b""
+        self._read_client()  # also here, so a caller never waits for the writer's next look
+        with self._lock:
+            data = bytes(self._rx)
+            self._rx.clear()
+            with contextlib.suppress(BlockingIOError):
+                os.eventfd_read(self._rx_event)
+        return data
+
+    def fileno(self) -> int | None:
+        """Return an event descriptor readable while client bytes wait for read_available."""
+        return None if self._closed else self._rx_event
+
+    def set_baud(self, baud: int) -> None:
+        """Pace output at ``baud`` from now on (bytes already queued included).
+
+        The slave's termios speed follows where ``baud`` is a standard rate; the pty itself
+        passes bytes at any speed, so the pacing is what a client notices.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, 8N1; positive.
+
+        Raises
+        ------
+        ConfigError
+            For a baud that is not a positive integer.
+        """
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        with self._lock:
+            self.baud = baud
+            self._bytes_per_s = baud / 10.0
+            self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
+            self._chunk_bytes = int(
+                min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
+            self._queue.max_bytes = self.max_backlog_bytes
+        speed = getattr(termios, f"B{baud}", None)
+        if speed is not None and not self._closed:
+            try:
+                attrs = termios.tcgetattr(self._master)
+                attrs[4] = attrs[5] = speed
+                termios.tcsetattr(self._master, termios.TCSANOW, attrs)
+            except (OSError, termios.error) as exc:
+                log.debug("cannot set the speed of %s: %s", self.slave_path, exc)
+        self._wake_writer()
+
+    def termios_baud(self) -> int | None:
+        """Return the speed currently set on the slave (a client may change it), in baud.
+
+        Returns
+        -------
+        int or None
+            None if the speed is not a standard rate or the device is closed.
+        """
+        if self._closed:
+            return None
+        return _baud_of_speed(termios.tcgetattr(self._master)[5])
+
+    def close(self) -> None:
+        """Stop the writer, close the pty (clients then read EOF/EIO) and remove the link."""
+        if self._closed:
+            return
+        self._closed = True
+        self.alive = False
+        self._signal(self._wake)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for fd in (self._master, self._wake, self._rx_event):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if self.link_path is not None:
+            try:
+                # Only our own link: another run may have taken the name over meanwhile.
+                if os.readlink(self.link_path) == str(self.slave_path):
+                    os.unlink(self.link_path)
+            except OSError:
+                pass
+
+    @property
+    def master_fd(self) -> int:
+        """Return the pty's master descriptor (to watch while :attr:`watch_master`)."""
+        return self._master
+
+    @property
+    def client_bytes_waiting(self) -> bool:
+        """Return whether client bytes wait for :meth:`read_available`."""
+        return bool(self._rx)
+
+    # -- writer -----------------------------------------------------------------------------
+
+    @staticmethod
+    def _signal(event_fd: int) -> None:
+        with contextlib.suppress(OSError):
+            os.eventfd_write(event_fd, 1)
+
+    def _wake_writer(self) -> None:
+        if self.on_wake is not None:
+            self.on_wake(self)
+        else:
+            self._signal(self._wake)
+
+    def step(self) -> float:
+        """Do what the writer has due now: take the client's bytes, notice a reader arriving or
+        leaving, write the next slice of output.
+
+        Returns
+        -------
+        float
+            Seconds until the writer needs to run again, unless an event comes first: a new
+            epoch (:attr:`on_wake`), or the master's events while :attr:`watch_master`.
+        """
+        now_s = time.monotonic()
+        self._read_client()
+        if self._reader_absent():
+            if self.reader_attached:
+                self._on_detach()
+            with self._lock:
+                self._queue.trim(now_s, 0)
+                self._kernel_unread = 0
+            self.watch_master = False  # POLLHUP would wake poll() at once: do not watch
+            return _IDLE_POLL_S
+        if not self.reader_attached:
+            self._on_attach()
+            self._next_send_s = now_s
+        timeout_s, self._next_send_s = self._service(now_s, self._next_send_s)
+        self.watch_master = True  # wake for client bytes (gpsd's probes) and hang-ups
+        return timeout_s
+
+    def _reader_absent(self) -> bool:
+        """Return True while no process has the slave open (POLLHUP on the master)."""
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        return any(ev & select.POLLHUP for _, ev in poller.poll(0))
+
+    def _read_client(self) -> None:
+        """Move what the client wrote from the master into the bounded ``_rx`` buffer."""
+        with self._rx_lock:
+            self._read_client_locked()
+
+    def _read_client_locked(self) -> None:
+        got = []
+        total = 0
+        while total < _MAX_READ_BYTES_PER_POLL:
+            try:
+                chunk = os.read(self._master, 4096)
+            except BlockingIOError:
+                break
+            except OSError:
+                break  # EIO: no client and nothing left to read (or closed meanwhile)
+            if not chunk:
+                break
+            got.append(chunk)
+            total += len(chunk)
+        if not got:
+            return
+        with self._lock:
+            for chunk in got:
+                self._rx += chunk
+            excess = len(self._rx) - _RX_MAX_BYTES
+            if excess > 0:
+                del self._rx[:excess]
+                self.rx_dropped_bytes += excess
+        self._signal(self._rx_event)
+
+    def _open_slave(self) -> int | None:
+        """Open the slave briefly for TIOCINQ/tcflush; None if we may not (e.g. TIOCEXCL)."""
+        try:
+            # O_NOCTTY: never become our controlling terminal; O_NONBLOCK: never wait for it.
+            return os.open(self.slave_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as exc:
+            if not self._peer_error_logged:
+                self._peer_error_logged = True
+                log.warning(
+                    "cannot open %s to watch for stale output (%s); a client that stops "
+                    "reading may later read old epochs",
+                    self.slave_path,
+                    exc,
+                )
+            return None
+
+    def _measure_unread(self) -> int | None:
+        fd = self._open_slave()
+        if fd is None:
+            return None
+        try:
+            return _unread_bytes(fd)
+        except OSError:
+            return None
+        finally:
+            os.close(fd)
+
+    def _flush_kernel(self) -> None:
+        """Discard output the client has not read, counting it as dropped."""
+        fd = self._open_slave()
+        if fd is not None:
+            try:
+                stale = _unread_bytes(fd)
+                termios.tcflush(fd, termios.TCIFLUSH)
+                if stale:
+                    self._kernel_dropped_bytes += stale
+                    self.kernel_flushes += 1
+            except OSError as exc:
+                log.debug("flushing %s failed: %s", self.slave_path, exc)
+            finally:
+                os.close(fd)
+        self._sent_log.clear()
+        self._in_kernel.clear()
+        self._sent_total = 0
+        self._kernel_unread = 0
+
+    def _unread_recent(self, now_s: float, unread: int) -> list[_Epoch]:
+        """The epochs written whole into the kernel's unread bytes that are not yet stale."""
+        first_unread = self._sent_total - unread
+        return [e for start, e in self._in_kernel
+                if start >= first_unread and now_s - e.t_enqueued_s <= self.max_backlog_s]
+
+    def _unread_age_s(self, now_s: float, unread: int) -> float:
+        """Return how long ago the oldest unread byte was written (0 if all was read)."""
+        first_unread = self._sent_total - unread
+        while self._sent_log and self._sent_log[0][1] <= first_unread:
+            self._sent_log.popleft()
+        while self._in_kernel and self._in_kernel[0][0] < first_unread:
+            self._in_kernel.popleft()  # (read, or begun: never sent again)
+        if unread <= 0 or not self._sent_log:
+            return 0.0
+        return now_s - self._sent_log[0][0]
+
+    def _on_attach(self) -> None:
+        self.reader_attached = True
+        log.info("a client opened %s", self.slave_path)
+        self._flush_kernel()  # anything left from before this client is stale to it
+
+    def _on_detach(self) -> None:
+        self.reader_attached = False
+        log.info(
+            "no client has %s open; holding at most %.1f s of output",
+            self.slave_path,
+            self.max_backlog_s,
+        )
+        self._flush_kernel()
+        with self._lock:
+            self._queue.drop_started()  # the next client must not start mid-epoch
+
+    def _service(self, now_s: float, next_send_s: float) -> tuple[float, float]:
+        """Write the next slice if it is due; return (seconds to sleep, next send time)."""
+        # What the client has left unread is measured (opening the slave for TIOCINQ) when the
+        # last measurement plus what was written since, an upper bound, could near the cap, and
+        # every _MEASURE_EVERY_S for the backlog's age; between, the bound stands in for it.
+        if (self._kernel_unread + self._chunk_bytes > _KERNEL_CAP_BYTES // 2
+                or now_s - self._measured_s >= _MEASURE_EVERY_S):
+            unread = self._measure_unread()
+            self._measured_s = now_s
+            fresh = True
+        else:
+            unread, fresh = self._kernel_unread, False
+        if fresh and unread is not None:
+            if (
+                unread > self.max_backlog_bytes
+                or self._unread_age_s(now_s, unread) > self.max_backlog_s
+            ):
+                # The client holds the port open but stopped reading: what it would read next
+                # is stale. Discard it and the rest of its epoch, then queue again the recent
+                # epochs the flush took with it (the newest may be all a client gets for a
+                # while: nothing else may follow soon).
+                recent = self._unread_recent(now_s, unread)
+                self._flush_kernel()
+                self._kernel_dropped_bytes -= sum(e.offset for e in recent)  # (back, not lost)
+                unread = 0
+                with self._lock:
+                    if recent and self._queue and self._queue.epochs[0] is recent[-1]:
+                        self._queue.epochs.popleft()  # (started: it goes back whole)
+                        self._queue.queued_bytes -= len(recent[-1].data) - recent[-1].offset
+                    self._queue.drop_started()
+                    self._queue.put_back(recent)
+        in_kernel = unread if unread is not None else 0
+        with self._lock:
+            self._kernel_unread = in_kernel
+            self._queue.trim(now_s, in_kernel)
+            if not self._queue:
+                # Nothing to send. Bytes the client has still to read are watched for going
+                # stale, which only a fresh measurement can tell: sleep until the next one is
+                # due (a 1 Hz daemon woke every 50 ms for nothing); otherwise only a new epoch
+                # (the wake event), client bytes or a hang-up (the master's POLLIN/POLLHUP)
+                # can need us.
+                if in_kernel:
+                    return max(0.0, self._measured_s + _MEASURE_EVERY_S - now_s), next_send_s
+                return _IDLE_ATTACHED_S, next_send_s
+            if next_send_s < now_s - self._chunk_s:
+                next_send_s = now_s  # idle or badly late: restart the line clock, no burst
+            if next_send_s > now_s:
+                return next_send_s - now_s, next_send_s
+            room = _KERNEL_CAP_BYTES - in_kernel
+            if room <= 0:
+                return self._chunk_s, next_send_s  # the client is not reading; look again soon
+            head = self._queue.epochs[0]
+            start = self._sent_total if head.offset == 0 else -1
+            chunk = self._queue.peek(min(self._chunk_bytes, room))
+            try:
+                n_sent = os.write(self._master, chunk)
+            except BlockingIOError:
+                n_sent = 0
+            except OSError as exc:
+                log.debug("write to %s failed: %s", self.slave_path, exc)
+                n_sent = 0
+            if n_sent <= 0:
+                return self._chunk_s, next_send_s
+            self._queue.advance(n_sent)
+            self.written_bytes += n_sent
+            self._kernel_unread = in_kernel + n_sent
+        if start >= 0:
+            self._in_kernel.append((start, head))
+        self._sent_total += n_sent
+        self._sent_log.append((head.t_enqueued_s, self._sent_total))  # (the bytes' age)
+        # Absolute schedule: the next slice is due when this one has left the "line".
+        next_send_s += n_sent / self._bytes_per_s
+        return max(0.0, next_send_s - time.monotonic()), next_send_s
+
+    def _run(self) -> None:
+        poller = select.poll()
+        poller.register(self._wake, select.POLLIN)
+        watching_master = False
+        try:
+            while self.alive:
+                timeout_s = self.step()
+                if self.watch_master != watching_master:
+                    if self.watch_master:
+                        poller.register(self._master, select.POLLIN)
+                    else:
+                        poller.unregister(self._master)
+                    watching_master = self.watch_master
+                for fd, _ in poller.poll(timeout_s * 1000.0):
+                    if fd == self._wake:
+                        with contextlib.suppress(BlockingIOError):
+                            os.eventfd_read(self._wake)
+        except Exception:
+            log.exception("the writer of %s stopped", self.slave_path)
+
+
+class SerialDevice(OutputDevice):
+    """A real serial port (or any pyserial URL such as ``loop://``) driven 8N1 at ``baud``.
+
+    A writer thread sends queued epochs; ``write_epoch`` only appends to a queue bounded like
+    :class:`PtyDevice`'s (``max_backlog_s`` of line time, counting the port's own output queue
+    where pyserial reports it). The UART paces the bytes itself. Writes that stall longer than
+    0.5 s (hardware flow control held, adapter unplugged) are dropped and counted; when the
+    port's output queue holds more than the backlog, it is discarded as stale.
+
+    pyserial's own non-blocking mode (``write_timeout=0``) is not used: on POSIX ports it spins
+    while the kernel buffer is full, and ``loop://`` raises SerialTimeoutException for every
+    write. Only the writer thread ever waits.
+
+    Parameters
+    ----------
+    port : str
+        Device (``/dev/ttyUSB0``) or pyserial URL (``loop://``, ``socket://host:port``).
+    baud : int
+        Line rate in bits per second.
+    max_backlog_s : float
+        Most output, in seconds of line time, that may wait to be sent.
+
+    Raises
+    ------
+    VirtualGPSError
+        If the port cannot be opened.
+    """
+
+    def __init__(self, port: str, baud: int, max_backlog_s: float = 2.0) -> None:
+        if not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        if not max_backlog_s > 0:
+            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
+        self.port = port
+        self.baud = baud
+        self.max_backlog_s = float(max_backlog_s)
+        bytes_per_s = baud / 10.0
+        self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
+        # Slices of ~0.1 s keep each write well inside the write timeout (loop:// refuses a
+        # write whose line time exceeds it).
+        self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
+        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
+        self._lock = threading.Lock()
+        self._has_data = threading.Condition(self._lock)
+        self._pending_baud: int | None = None
+        self._closed = False
+        self._port_dropped_bytes = 0
+        self.written_bytes = 0
+        self._error_logged = False
+        try:
+            self._serial = serial.serial_for_url(
+                port,
+                baudrate=baud,
+                bytesize=serial.EIGHTBITS,
+                parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE,
+                timeout=0,  # reads return at once
+                write_timeout=_SERIAL_WRITE_TIMEOUT_S,
+                xonxoff=False,
+                rtscts=False,
+                dsrdtr=False,
+            )
+        except (serial.SerialException, ValueError, OSError) as exc:
+            raise VirtualGPSError(
+                f"cannot open serial port {port} at {baud} baud: {exc}. Check the device name "
+                f"and that you may use it (on Linux, membership of the dialout group)"
+            ) from exc
+        self.alive = True
+        self._thread = threading.Thread(
+            target=self._run, name=f"virtualgps-serial-{port}", daemon=True
+        )
+        self._thread.start()
+
+    @property
+    def path(self) -> str:
+        """Return the port name or URL."""
+        return self.port
+
+    def describe(self) -> str:
+        """Return ``PORT at BAUD baud``."""
+        return f"{self.port} at {self.baud} baud"
+
+    @property
+    def dropped_bytes(self) -> int:  # type: ignore[override]
+        """Return bytes that never reached the port (queue drops, stalls, flushed output)."""
+        return self._queue.dropped_bytes + self._port_dropped_bytes
+
+    @property
+    def dropped_epochs(self) -> int:  # type: ignore[override]
+        """Return whole epochs dropped before any byte of them was sent."""
+        return self._queue.dropped_epochs
+
+    def write_epoch(self, data: bytes) -> None:
+        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
+
+        Parameters
+        ----------
+        data : bytes
+            The epoch's bytes.
+
+        Raises
+        ------
+        VirtualGPSError
+            If the device was closed.
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        if not data:
+            return
+        with self._has_data:
+            now_s = time.monotonic()
+            self._queue.put(bytes(data), now_s)
+            self._queue.trim(now_s, 0)
+            self._has_data.notify()
+
+    def read_available(self) -> bytes:
+        """Return what arrived on the port since the last call, without waiting.
+
+        Returns
+        -------
+        bytes
+            At most the newest 64 KiB of it.
+        """
+        if self._closed:
+            return b""
+        try:
+            data = self._serial.read(max(self._serial.in_waiting, 0))
+            while len(data) < _MAX_READ_BYTES_PER_POLL and self._serial.in_waiting:
+                data += self._serial.read(self._serial.in_waiting)
+        except (serial.SerialException, OSError) as exc:
+            self._log_error("read", exc)
+            return b""
+        return bytes(data[-_RX_MAX_BYTES:])
+
+    def fileno(self) -> int | None:
+        """Return the port's descriptor (readable on input) where it has one, else None."""
+        if self._closed:
+            return None
+        try:
+            return self._serial.fileno()
+        except (AttributeError, NotImplementedError, OSError, ValueError,
+                serial.SerialException):  # (pyserial's URL handlers: io.UnsupportedOperation)
+            return None
+
+    def close(self) -> None:
+        """Stop the writer and close the port."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._has_data:
+            self.alive = False
+            self._has_data.notify()
+        with contextlib.suppress(AttributeError, serial.SerialException):
+            self._serial.cancel_write()  # wake a writer stalled on a held port
+        self._thread.join(timeout=5.0)
+        with contextlib.suppress(serial.SerialException, OSError):
+            self._serial.close()
+
+    def set_baud(self, baud: int) -> None:
+        """Switch the port to ``baud`` once what is queued now has been sent.
+
+        The writer applies it when its queue runs empty, after the port has transmitted
+        everything (``flush``), so a reply queued before (the ``$PMTK001`` of a ``$PMTK251``)
+        leaves at the old rate, as a receiver acknowledges before it switches.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, positive.
+
+        Raises
+        ------
+        ConfigError
+            For a baud that is not a positive integer.
+        """
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        with self._has_data:
+            self._pending_baud = baud
+            self._has_data.notify()
+
+    def _apply_baud(self, baud: int) -> None:
+        try:
+            self._serial.flush()
+            self._serial.baudrate = baud
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._log_error("changing the baud rate", exc)
+        with self._lock:
+            if self._pending_baud == baud:
+                self._pending_baud = None
+            self.baud = baud
+            bytes_per_s = baud / 10.0
+            self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
+            self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
+            self._queue.max_bytes = self.max_backlog_bytes
+
+    def _log_error(self, what: str, exc: BaseException) -> None:
+        if not self._error_logged:
+            self._error_logged = True
+            log.warning("%s on %s failed: %s (further failures not logged)", what, self.port, exc)
+
+    def _port_backlog(self) -> int:
+        try:
+            return int(self._serial.out_waiting)
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return 0
+
+    def _run(self) -> None:
+        try:
+            while True:
+                with self._has_data:
+                    while self.alive and not self._queue and self._pending_baud is None:
+                        self._has_data.wait()
+                    if not self.alive:
+                        return
+                    pending = self._pending_baud if not self._queue else None
+                if pending is not None:
+                    self._apply_baud(pending)
+                    continue
+                waiting = self._port_backlog()
+                if waiting > self.max_backlog_bytes:
+                    # Output the line could not send in max_backlog_s: stale, discard it.
+                    with contextlib.suppress(serial.SerialException, OSError):
+                        self._serial.reset_output_buffer()
+                        self._port_dropped_bytes += waiting
+                        waiting = 0
+                with self._lock:
+                    self._queue.trim(time.monotonic(), waiting)
+                    if not self._queue:
+                        continue
+                    chunk = self._queue.peek(self._chunk_bytes)
+                try:
+                    n_sent = self._serial.write(chunk) or 0
+                except (serial.SerialTimeoutException, queue.Full) as exc:
+                    # queue.Full: loop:// when its 4 KiB buffer stays full for the timeout.
+                    self._log_error("write", exc)
+                    with self._lock:
+                        self._queue.drop_started()
+                        if self._queue and not self._queue.epochs[0].offset:
+                            # The port is stuck: drop the epoch whole (pyserial does not say
+                            # how much of the slice went out before the timeout).
+                            head = self._queue.epochs.popleft()
+                            self._queue.queued_bytes -= len(head.data)
+                            self._queue.dropped_bytes += len(head.data)
+                            self._queue.dropped_epochs += 1
+                    continue
+                except (serial.SerialException, OSError) as exc:
+                    self._log_error("write", exc)
+                    time.sleep(_IDLE_POLL_S)  # a vanished port: do not spin
+                    continue
+                with self._lock:
+                    if n_sent:
+                        self._queue.advance(n_sent)
+                        self.written_bytes += n_sent
+        except Exception:
+            log.exception("the writer of %s stopped", self.port)
+
+
+class FileSink(OutputDevice):
+    """NMEA to a file, or to stdout for ``-`` (binary, unchanged).
+
+    For ``replay``: writes are synchronous, so a slow pipe makes the caller wait (back-pressure,
+    no bytes lost, output byte-identical); this is the one device whose ``write_epoch`` may
+    wait. Use a pty or serial device for live output.
+
+    Parameters
+    ----------
+    path : Path or str
+        File to create (truncated), or ``-`` for stdout.
+    flush_each_epoch : bool
+        Flush after every epoch (for ``tail -f`` or a live pipe); off for throughput.
+
+    Raises
+    ------
+    VirtualGPSError
+        If the file cannot be created.
+    """
+
+    def __init__(self, path: Path | str, flush_each_epoch: bool = False) -> None:
+        self._name = str(path)
+        self.flush_each_epoch = flush_each_epoch
+        self.written_bytes = 0
+        self._closed = False
+        self._stream: BinaryIO
+        if self._name == "-":
+            self._stream = sys.stdout.buffer
+            self._owned = False
+        else:
+            try:
+                self._stream = open(path, "wb")  # noqa: SIM115 - closed in close()
+            except OSError as exc:
+                raise VirtualGPSError(f"cannot write {path}: {exc}") from exc
+            self._owned = True
+
+    @property
+    def path(self) -> str:
+        """Return the file path, or ``-`` for stdout."""
+        return self._name
+
+    def describe(self) -> str:
+        """Return the file path, or ``stdout``."""
+        return "stdout" if self._name == "-" else self._name
+
+    def write_epoch(self, data: bytes) -> None:
+        """Write one epoch's bytes.
+
+        Parameters
+        ----------
+        data : bytes
+
+        Raises
+        ------
+        VirtualGPSError
+            If the sink was closed or the write failed (disk full, closed pipe).
+        """
+        if self._closed:
+            raise VirtualGPSError(f"{self.describe()} is closed")
+        try:
+            self._stream.write(data)
+            if self.flush_each_epoch:
+                self._stream.flush()
+        except OSError as exc:
+            raise VirtualGPSError(f"cannot write {self.describe()}: {exc}") from exc
+        self.written_bytes += len(data)
+
+    def close(self) -> None:
+        """Flush, and close the file (stdout is flushed, not closed)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            log.warning("flushing %s failed: %s", self.describe(), exc)
+        finally:
+            if self._owned:
+                self._stream.close()

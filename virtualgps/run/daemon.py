@@ -1,0 +1,887 @@
+"""The live loop: one epoch per period on absolute ticks of the simulated clock, for one
+receiver or a fleet.
+
+Epochs fall on whole multiples of 1/rate of simulated UTC. Each epoch interpolates the poses to
+the epoch time, runs :func:`virtualgps.receiver.core.simulate` on that one epoch of every receiver
+due (the receivers as rows; the code replay runs on thousands of epochs), renders NMEA and
+hands it to the devices, which never block. Pose messages and the clients' commands are read
+whenever they arrive, between epochs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import select
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Protocol
+
+import numpy as np
+
+from virtualgps.device import mtk, nmea
+from virtualgps.exceptions import PoseError
+from virtualgps.poses import pose
+from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.records import Fixes
+from virtualgps.receiver.skyview import compute_sky
+from virtualgps.receiver.state import ReceiverRows, ReceiverState, initial_state, restart
+
+log = logging.getLogger(__name__)
+
+LIVE_POSE_HISTORY = 64  # poses kept for interpolation; a few seconds at typical robot rates
+MAX_MESSAGES_PER_PUMP = 20_000  # bound the work between two epochs under a message flood
+
+
+@dataclass
+class SimClock:
+    """Simulated UTC running at wall-clock speed from ``start_unix_s`` (or the wall clock itself).
+
+    offset_s : simulated minus wall-clock time; poses stamped by the robot's (wall) clock are
+        moved by it onto the simulated clock
+    """
+
+    start_unix_s: float | None = None
+    _mono0: float = field(default_factory=time.monotonic)
+    _wall0: float = field(default_factory=time.time)
+
+    @property
+    def offset_s(self) -> float:
+        return 0.0 if self.start_unix_s is None else self.start_unix_s - self._wall0
+
+    def now_unix_s(self) -> float:
+        """Simulated UTC now, seconds."""
+        base = self._wall0 if self.start_unix_s is None else self.start_unix_s
+        return base + (time.monotonic() - self._mono0)
+
+    def monotonic_at(self, t_unix_s: float) -> float:
+        """The monotonic-clock time at which the simulated clock reads ``t_unix_s``."""
+        base = self._wall0 if self.start_unix_s is None else self.start_unix_s
+        return self._mono0 + (t_unix_s - base)
+
+
+class PoseProvider(Protocol):
+    """Where the daemon gets the antenna pose at an epoch."""
+
+    def fileno_list(self) -> list[int]:
+        """File descriptors to wait on for incoming poses (may be empty)."""
+        ...
+
+    def pump(self) -> None:
+        """Read whatever has arrived (never blocks)."""
+        ...
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pos (n, 3) scene ENU m, vel (n, 3) ENU m/s, valid (n,) bool) of a receiver at
+        simulated times."""
+        ...
+
+    def close(self) -> None: ...
+
+
+class _KnownPoses:
+    """A provider whose poses are known in advance: nothing to wait for or read."""
+
+    def fileno_list(self) -> list[int]:
+        return []
+
+    def pump(self) -> None:
+        return None
+
+
+class TrackProvider(_KnownPoses):
+    """A pose log (or any PoseTrack in scene ENU) replayed in real time: its time
+    ``t_first_unix_s`` (default: its first pose's) at simulated ``t0_unix_s``."""
+
+    def __init__(self, track: pose.PoseTrack, t0_unix_s: float, max_gap_s: float,
+                 t_first_unix_s: float | None = None) -> None:
+        self.track = track
+        if t_first_unix_s is None:
+            t_first_unix_s = float(track.t_unix_s[0]) if len(track) else t0_unix_s
+        self.shift_s = t0_unix_s - t_first_unix_s
+        self.max_gap_s = max_gap_s
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return pose.interpolate(self.track, np.asarray(t_unix_s) - self.shift_s, self.max_gap_s)
+
+    def close(self) -> None:
+        return None
+
+
+def demo_lap(waypoints_enu_m: np.ndarray, speed_mps: float, step_s: float = 0.5) -> pose.PoseTrack:
+    """One lap of a scripted walk: the closed waypoint loop at constant speed, sampled densely.
+
+    Parameters
+    ----------
+    waypoints_enu_m : (n, 3) metres, scene ENU (antenna positions)
+    speed_mps : walking speed
+    step_s : sampling interval of the returned track
+
+    Returns
+    -------
+    lap : PoseTrack in the scene ENU frame, times from 0 to the lap time; velocities are left
+        to finite differences, which are exact since every corner is a sample
+    """
+    pts = np.asarray(waypoints_enu_m, dtype=float)
+    loop = np.vstack([pts, pts[:1]])
+    seg_m = np.linalg.norm(np.diff(loop, axis=0), axis=1)
+    leg_t = np.concatenate([[0.0], np.cumsum(seg_m) / speed_mps])  # (n + 1,) arrival times
+    t = np.union1d(np.arange(0.0, leg_t[-1], step_s), leg_t)
+    k = np.clip(np.searchsorted(leg_t, t, side="right") - 1, 0, len(seg_m) - 1)
+    w = ((t - leg_t[k]) / (leg_t[k + 1] - leg_t[k]))[:, None]
+    xyz = loop[k] + w * (loop[k + 1] - loop[k])
+    return pose.PoseTrack(t_unix_s=t, frame="enu", xyz=xyz, vel_enu_mps=np.full_like(xyz, np.nan))
+
+
+class LoopProvider(TrackProvider):
+    """A lap (times from 0) walked again and again from ``t0_unix_s``: the ``demo`` source."""
+
+    def __init__(self, lap: pose.PoseTrack, t0_unix_s: float, max_gap_s: float) -> None:
+        super().__init__(lap, 0.0, max_gap_s)
+        self.t0_unix_s = t0_unix_s
+        self.lap_s = float(lap.t_unix_s[-1])
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t_lap = (np.asarray(t_unix_s, dtype=float) - self.t0_unix_s) % self.lap_s
+        return pose.interpolate(self.track, t_lap, self.max_gap_s)
+
+
+class LiveProvider:
+    """Poses from a message source (UDP, TCP, stdin): parsed, counted, kept for interpolation,
+    one history per receiver (the message's ``"id"``, 0 where absent).
+
+    Malformed messages are counted per kind and logged once per kind; messages for a receiver
+    that does not exist are counted (``unknown_ids``) and logged once. Neither ever stops the
+    daemon.
+
+    Parameters
+    ----------
+    source : the message source (``poll``, ``fileno_list``, ``close``)
+    georef : the scene's georeference (geodetic poses -> scene ENU)
+    clock : the simulated clock (robot-clock times -> simulated times)
+    max_gap_s : the pose timeout
+    receiver_ids : the receivers that exist (default: receiver 0 alone)
+    """
+
+    def __init__(self, source, georef: Georef, clock: SimClock, max_gap_s: float,
+                 receiver_ids: Iterable[int] = (0,)) -> None:
+        self.source = source
+        self.georef = georef
+        self.clock = clock
+        self.max_gap_s = max_gap_s
+        self.histories: dict[int, deque[tuple[float, np.ndarray, np.ndarray]]] = {
+            int(i): deque(maxlen=LIVE_POSE_HISTORY) for i in receiver_ids}
+        self.bad: Counter[str] = Counter()
+        self.unknown_ids: Counter[int] = Counter()
+        self.n_good = 0
+        self._tracks: dict[int, pose.PoseTrack] = {}
+
+    @property
+    def history(self) -> deque[tuple[float, np.ndarray, np.ndarray]]:
+        """Receiver 0's poses (simulated time, ENU m, ENU m/s), oldest first."""
+        return self.histories[min(self.histories)]
+
+    def fileno_list(self) -> list[int]:
+        return list(self.source.fileno_list())
+
+    def _to_enu(self, p: pose.Pose) -> np.ndarray:
+        if p.frame == "enu":
+            return np.asarray(p.xyz, dtype=float)
+        track = pose.PoseTrack(
+            np.array([p.t_unix_s]),
+            "geodetic",
+            np.asarray([p.xyz], float),
+            np.asarray([p.vel_enu_mps], float),
+        )
+        g = self.georef
+        return pose.to_enu(track, g.lat0_deg, g.lon0_deg, g.alt0_hae_m).xyz[0]
+
+    def pump(self) -> None:
+        messages = self.source.poll()[:MAX_MESSAGES_PER_PUMP]
+        for data, arrival_wall_s in messages:
+            try:
+                p = pose.parse_pose_message(data, arrival_wall_s)
+                history = self.histories.get(p.receiver_id)
+                if history is None:
+                    if not self.unknown_ids:
+                        log.warning("skipping a pose message for receiver %d, which does not "
+                                    "exist (further ones are counted, not logged)", p.receiver_id)
+                    self.unknown_ids[p.receiver_id] += 1
+                    continue
+                enu = self._to_enu(p)
+            except PoseError as exc:
+                if self.bad[exc.kind] == 0:
+                    log.warning(
+                        "skipping malformed pose message (%s): %s "
+                        "(further ones of this kind are counted, not logged)",
+                        exc.kind,
+                        exc,
+                    )
+                self.bad[exc.kind] += 1
+                continue
+            t_sim = p.t_unix_s + self.clock.offset_s
+            if history and t_sim <= history[-1][0]:
+                if t_sim == history[-1][0]:
+                    continue
+                # Out-of-order message: keep the history sorted (rare; UDP may reorder).
+                items = sorted(
+                    [*history, (t_sim, enu, np.asarray(p.vel_enu_mps, float))],
+                    key=lambda item: item[0],
+                )
+                history.clear()
+                history.extend(items[-LIVE_POSE_HISTORY:])
+            else:
+                history.append((t_sim, enu, np.asarray(p.vel_enu_mps, float)))
+            self.n_good += 1
+            self._tracks.pop(p.receiver_id, None)
+
+    def poses_at(
+        self, t_unix_s: float, receiver_ids: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The poses of several receivers at one simulated time (see :func:`poses_at`): what
+        :meth:`pose_at` gives each, to the bit. An epoch at or after a receiver's last pose (a
+        live stream lags the clock) extrapolates that pose with its velocity (its own, else
+        the last step's), all such receivers at once, as :func:`virtualgps.poses.pose.interpolate`
+        does past a track's end; any other goes through :meth:`pose_at`.
+
+        Returns
+        -------
+        pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+        """
+        n = len(receiver_ids)
+        pos, vel, valid = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        after: list[int] = []
+        tails = []
+        for b, rid in enumerate(receiver_ids):
+            h = self.histories.get(rid)
+            if not h:
+                continue
+            if t_unix_s >= h[-1][0]:
+                after.append(b)
+                tails.append((h[-1], h[-2] if len(h) > 1 else h[-1]))
+            else:
+                pos[b], vel[b], valid[b] = (a[0] for a in self.pose_at(np.array([t_unix_s]), rid))
+        if after:
+            t_last = np.array([last[0] for last, _ in tails])
+            t_prev = np.array([prev[0] for _, prev in tails])
+            p_last = np.array([last[1] for last, _ in tails])
+            p_prev = np.array([prev[1] for _, prev in tails])
+            v_last = np.array([last[2] for last, _ in tails])
+            with np.errstate(invalid="ignore", divide="ignore"):  # (one pose: no step)
+                fd = (p_last - p_prev) / (t_last - t_prev)[:, None]
+            last_v = np.where(np.isnan(v_last), np.where((t_last > t_prev)[:, None], fd, np.nan),
+                              v_last)
+            last_v = np.where(np.isnan(last_v), 0.0, last_v)
+            age = t_unix_s - t_last
+            ok = age <= self.max_gap_s
+            pos[after] = np.where(ok[:, None], p_last + age[:, None] * last_v, np.nan)
+            vel[after] = np.where(ok[:, None], last_v, np.nan)
+            valid[after] = ok
+        return pos, vel, valid
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = np.asarray(t_unix_s, dtype=float)
+        history = self.histories.get(receiver_id)
+        if not history:
+            n = t.shape[0]
+            return np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        track = self._tracks.get(receiver_id)
+        if track is None:
+            ts, xyz, vel = zip(*history, strict=True)
+            track = self._tracks[receiver_id] = pose.PoseTrack(
+                np.array(ts), "enu", np.array(xyz), np.array(vel))
+        return pose.interpolate(track, t, self.max_gap_s)
+
+    def close(self) -> None:
+        self.source.close()
+
+
+class ReceiverPoses(_KnownPoses):
+    """Each receiver's own provider (pose logs split by id, demo walks): ``pose_at`` by id.
+
+    Parameters
+    ----------
+    providers : {receiver id: provider}; a receiver without one has no pose (no fix)
+    """
+
+    def __init__(self, providers: dict[int, PoseProvider]) -> None:
+        self.providers = providers
+
+    def poses_at(
+        self, t_unix_s: float, receiver_ids: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The poses of several receivers at one simulated time (see :func:`poses_at`); the
+        demo's walkers, one lap at different phases, in one interpolation.
+
+        Returns
+        -------
+        pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+        """
+        n = len(receiver_ids)
+        pos, vel, valid = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        laps: dict[int, list[int]] = {}
+        for b, rid in enumerate(receiver_ids):
+            p = self.providers.get(rid)
+            if isinstance(p, LoopProvider):
+                laps.setdefault(id(p.track), []).append(b)
+            elif p is not None:
+                pos[b], vel[b], valid[b] = (a[0] for a in p.pose_at(np.array([t_unix_s]), rid))
+        for idx in laps.values():
+            ps = [self.providers[receiver_ids[b]] for b in idx]
+            t_lap = np.array([(t_unix_s - p.t0_unix_s) % p.lap_s for p in ps])
+            pos[idx], vel[idx], valid[idx] = pose.interpolate(ps[0].track, t_lap, ps[0].max_gap_s)
+        return pos, vel, valid
+
+    def pose_at(
+        self, t_unix_s: np.ndarray, receiver_id: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = self.providers.get(receiver_id)
+        if p is None:
+            n = np.asarray(t_unix_s).shape[0]
+            return np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.zeros(n, bool)
+        return p.pose_at(t_unix_s, receiver_id)
+
+    def close(self) -> None:
+        for p in self.providers.values():
+            p.close()
+
+
+@dataclass
+class DaemonStats:
+    """Counters the status line and the exit summary show.
+
+    link : the MTK command link (its ``settings`` are what the client set: fix interval, baud,
+        sentence rates, SBAS, static-navigation threshold), or None without one
+    """
+
+    epochs: int = 0
+    fixes: int = 0
+    late_epochs: int = 0
+    skipped_epochs: int = 0
+    max_lateness_s: float = 0.0
+    link: mtk.MtkLink | None = None
+
+
+def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
+    """The profile's command link: a :class:`~virtualgps.device.mtk.MtkLink` for ``mtk``, else
+    None.
+
+    Parameters
+    ----------
+    profile : the receiver profile (``command_link``, ``firmware``, ``rate_hz``, ``baud``)
+    fmt : its output format (the sentences and their rates at power-on)
+
+    Returns
+    -------
+    link : MtkLink or None
+    """
+    if getattr(profile, "command_link", "none") != "mtk":
+        return None
+    sbas = profile.sbas.enabled
+    hold = profile.static_hold
+    defaults = mtk.default_settings(
+        fmt.sentences, dict(fmt.every), profile.rate_hz, profile.baud,
+        dgps_mode=2 if sbas else 0, sbas_enabled=sbas,
+        static_nav_mps=hold.threshold_mps if hold.enabled else 0.0,
+    )
+    return mtk.MtkLink(defaults, profile.firmware)
+
+
+def apply_link_settings(rx: Receiver, settings: mtk.MtkSettings) -> Receiver:
+    """The receiver with the link's SBAS and static-navigation settings in its effects.
+
+    Parameters
+    ----------
+    rx : the receiver
+    settings : the command link's settings (``sbas_active``, ``static_nav_mps``)
+
+    Returns
+    -------
+    rx : a receiver whose profile has ``sbas.enabled`` and ``static_hold`` set accordingly
+    """
+    prof = rx.profile
+    hold = replace(prof.static_hold, enabled=settings.static_nav_mps > 0.0,
+                   threshold_mps=settings.static_nav_mps or prof.static_hold.threshold_mps)
+    new = replace(prof, sbas=replace(prof.sbas, enabled=settings.sbas_active), static_hold=hold)
+    return rx if new == prof else replace(rx, profile=new)
+
+
+def _format_for(
+    base: nmea.NmeaFormat, settings: mtk.MtkSettings, defaults: mtk.MtkSettings, rate_hz: float
+) -> nmea.NmeaFormat | None:
+    """The output format under the link's sentence rates (None: every sentence switched off)."""
+    if settings.rates == defaults.rates:
+        return replace(base, fix_rate_hz=rate_hz)
+    sentences = mtk.sentence_order(base.sentences, settings)
+    if not sentences:
+        return None
+    enabled = settings.sentence_every()
+    every = dict(base.every)
+    every.update({s: n for s, n in enabled.items() if s in sentences})
+    every = {s: n for s, n in every.items() if s in sentences and n > 1}
+    return replace(
+        base, sentences=sentences, every=tuple(sorted(every.items())), fix_rate_hz=rate_hz
+    )
+
+
+class LiveReceiver:
+    """One receiver of the live loop: its state and random streams, command link, rate, output
+    format and device.
+
+    With an MTK command link, ``$PMTK010,001`` goes out at once (before the first epoch); what
+    the client writes is answered by :meth:`service_client` between epochs (a reply is queued
+    whole, after any epoch already queued, so it never splits an epoch) and applied: restarts
+    (no fix until the start's TTFF), fix interval (epochs on multiples of the new interval),
+    baud (the device's pacing or port speed), sentence rates; SBAS and the static-navigation
+    threshold switch those effects. Without a link the client's bytes are read and discarded.
+
+    Parameters
+    ----------
+    rx : the receiver
+    device : output device (``write_epoch``, ``read_available``; optional ``fileno``,
+        ``set_baud``), never blocking
+    fmt : NMEA format
+    clock : the simulated clock
+    rng : this receiver's random generator
+    link : the command link; ``"profile"`` (default) makes the profile's (:func:`make_link`),
+        None for none
+    receiver_id : the receiver's number (the ``"id"`` of its pose messages)
+    antenna_offset_enu_m : (3,) metres, scene ENU, added to every pose (antenna lever arm)
+    t_first_unix_s : simulated UTC from which the first epoch is the next on the grid (default:
+        now; a fleet gives all its receivers one)
+
+    Attributes
+    ----------
+    stats : DaemonStats, this receiver's counters
+    k : index of the next epoch at ``rate`` (the epoch is at ``k / rate`` simulated UTC)
+    """
+
+    def __init__(
+        self,
+        rx: Receiver,
+        device,
+        fmt: nmea.NmeaFormat,
+        clock: SimClock,
+        rng: np.random.Generator,
+        link: mtk.MtkLink | None | str = "profile",
+        receiver_id: int = 0,
+        antenna_offset_enu_m: np.ndarray | None = None,
+        t_first_unix_s: float | None = None,
+    ) -> None:
+        prof = rx.profile
+        if isinstance(link, str):
+            link = make_link(prof, fmt)
+        self.rx, self.prof, self.device, self.clock, self.rng = rx, prof, device, clock, rng
+        self.link = link
+        self.receiver_id = receiver_id
+        self.offset_enu_m = (np.zeros(3) if antenna_offset_enu_m is None
+                             else np.asarray(antenna_offset_enu_m, float).reshape(3))
+        self.base_fmt = fmt
+        self.out_fmt: nmea.NmeaFormat | None = fmt
+        self.rate = prof.rate_hz
+        self.stats = DaemonStats(link=link)
+        self.n_sat = len(rx.ephemeris.prn)
+        self.recent_sizes: deque[int] = deque(maxlen=10)  # bytes of the last epochs
+        # Whether the line carries the output is looked at every few epochs, from the last
+        # epochs' sizes (afresh after a client changes the rate, the baud or the sentences).
+        self._line_check_at = self.recent_sizes.maxlen
+        self.t_last: float | None = None
+        self.applied = link.settings if link is not None else None  # the settings in effect
+        t_from = clock.now_unix_s() if t_first_unix_s is None else t_first_unix_s
+        self.k = math.ceil(t_from * self.rate - 1e-9)
+        # Its row in the batch it was last simulated in, while nothing else touched its state:
+        # the next tick of the same batch goes on from the rows as they are.
+        self._row: tuple[ReceiverRows, int, Profile] | None = None
+        # Power-on at the first epoch's time, as replay does: a run with --start-time starts
+        # the same whatever its set-up took (a fleet's receiver as the same receiver alone).
+        self.state = initial_state(prof, self.t_next_unix_s, rng, self.n_sat)
+        if link is not None:
+            device.write_epoch(link.startup().encode("ascii"))
+
+    @property
+    def state(self) -> ReceiverState:
+        """The receiver state after its last epoch."""
+        if self._row is not None:
+            rows, i, prof = self._row
+            self._state = rows.row_state(i, prof)
+            self._row = None
+        return self._state
+
+    @state.setter
+    def state(self, state: ReceiverState) -> None:
+        self._state = state
+        self._row = None
+
+    def next_k(self, r: float) -> int:
+        """Index of the next epoch at rate ``r``: after the last one, not in the past."""
+        k_now = math.ceil(self.clock.now_unix_s() * r - 1e-9)
+        if self.t_last is None:
+            return k_now
+        return max(math.floor(self.t_last * r + 1e-6) + 1, k_now)
+
+    @property
+    def t_next_unix_s(self) -> float:
+        """Simulated UTC of the next epoch, seconds."""
+        return self.k / self.rate
+
+    def service_client(self) -> None:
+        """Read what the client wrote; with a link answer and apply it."""
+        data = self.device.read_available()
+        link, prof = self.link, self.prof
+        if link is None or self.applied is None or not data:
+            return
+        for resp in link.feed(data, max(self.recent_sizes, default=0)):
+            old = self.applied
+            if resp.replies:
+                self.device.write_epoch("".join(resp.replies).encode("ascii"))
+            if resp.restart is not None:
+                self.state = restart(self.state, resp.restart, self.clock.now_unix_s(), prof,
+                                     self.rng, self.n_sat)
+                log.info("client commanded a %s start", resp.restart)
+            new = self.applied = resp.settings
+            if new is old:
+                continue
+            if new.baud != old.baud:
+                set_baud = getattr(self.device, "set_baud", None)
+                if set_baud is not None:
+                    set_baud(new.baud)
+                log.info("client set the baud rate to %d", new.baud)
+            if new.fix_interval_ms != old.fix_interval_ms:
+                self.rate = (
+                    prof.rate_hz
+                    if new.fix_interval_ms == link.defaults.fix_interval_ms
+                    else new.rate_hz
+                )
+                self.k = self.next_k(self.rate)
+                log.info("client set the fix interval to %d ms", new.fix_interval_ms)
+            if new.rates != old.rates or new.fix_interval_ms != old.fix_interval_ms:
+                self.out_fmt = _format_for(self.base_fmt, new, link.defaults, self.rate)
+            if (new.baud, new.rates, new.fix_interval_ms) != (old.baud, old.rates,
+                                                              old.fix_interval_ms):
+                # (recent_sizes is kept: the link's too-fast check of $PMTK220 needs it; by
+                # the next check it holds only epochs made after the change)
+                self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
+            if (new.sbas_active, new.static_nav_mps) != (old.sbas_active, old.static_nav_mps):
+                self.rx = apply_link_settings(self.rx, new)
+                log.info("client set SBAS %s, static navigation %.2f m/s",
+                         "on" if new.sbas_active else "off", new.static_nav_mps)
+
+    def sent(self, data: bytes | None, has_fix: bool) -> None:
+        """Queue the epoch's NMEA (None: every sentence switched off) and move to the next
+        epoch."""
+        if data is not None:
+            self.device.write_epoch(data)
+            self.recent_sizes.append(len(data))
+        if self.stats.epochs >= self._line_check_at:  # (every few epochs: a fix lengthens them)
+            self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
+            warn_if_line_too_slow(self.recent_sizes, self.rate, getattr(self.device, "baud", None))
+        self.t_last = self.t_next_unix_s
+        self.stats.epochs += 1
+        self.stats.fixes += int(has_fix)
+        self.k += 1
+        # Fell behind by more than one period (machine suspended, debugger): skip to now rather
+        # than emit a burst of old epochs.
+        k_now = math.floor(self.clock.now_unix_s() * self.rate)
+        if k_now > self.k:
+            self.stats.skipped_epochs += k_now - self.k
+            self.k = k_now
+
+
+_LINE_WARNED: set[tuple[float, int]] = set()  # (rate, baud) already warned of, once a process
+
+
+def warn_if_line_too_slow(sizes: Sequence[int], rate_hz: float, baud: int | None) -> bool:
+    """Warn (once per rate and baud in a process) when the epochs need more than the serial
+    line carries: the device then drops the oldest whole epochs to keep its output fresh, and
+    a client sees fewer epochs than the rate, as behind a real receiver set to a rate its baud
+    cannot carry (MTK's PMTK220 notes: 10 Hz wants 115200 baud or fewer sentences).
+
+    Parameters
+    ----------
+    sizes : bytes of the last epochs
+    rate_hz : epochs per second
+    baud : the line's bits per second (8N1: 10 bits a byte); None for a device without a line
+
+    Returns
+    -------
+    bool : whether the line is too slow
+    """
+    if baud is None or not sizes:
+        return False
+    need_baud = 10.0 * rate_hz * sum(sizes) / len(sizes)
+    if need_baud <= baud:
+        return False
+    if (rate_hz, baud) not in _LINE_WARNED:
+        _LINE_WARNED.add((rate_hz, baud))
+        log.warning(
+            "at %g Hz an epoch of ~%d bytes needs %d baud: the %d-baud line carries %.0f %% of "
+            "the epochs, the rest are dropped (raise the baud rate, e.g. --baud 115200 or "
+            "$PMTK251, lower the rate, or switch sentences off with $PMTK314)",
+            rate_hz, round(sum(sizes) / len(sizes)), math.ceil(need_baud), baud,
+            100.0 * baud / need_baud)
+    return True
+
+
+def poses_at(
+    provider: PoseProvider, t_unix_s: float, receiver_ids: list[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The poses of several receivers at one simulated time: the provider's ``poses_at`` where
+    it has one, else its ``pose_at`` receiver by receiver.
+
+    Returns
+    -------
+    pos : (n, 3) scene ENU m; vel : (n, 3) ENU m/s; valid : (n,) bool
+    """
+    batch = getattr(provider, "poses_at", None)
+    if batch is not None:
+        return batch(t_unix_s, receiver_ids)
+    t = np.array([t_unix_s])
+    got = [provider.pose_at(t, rid) for rid in receiver_ids]
+    return (np.concatenate([p for p, _, _ in got]), np.concatenate([v for _, v, _ in got]),
+            np.concatenate([ok for _, _, ok in got]))
+
+
+def tick(
+    members: list[LiveReceiver], provider: PoseProvider
+) -> list[tuple[list[LiveReceiver], Fixes, list[bytes | None]]]:
+    """Simulate the epoch of receivers due together and render their NMEA (sent by
+    :meth:`LiveReceiver.sent`).
+
+    Receivers that share a :class:`~virtualgps.receiver.core.Receiver` and an epoch time are one
+    batch: one :func:`compute_sky` for all their antennas (SGP4 once, every ray in one Embree
+    call), one :func:`simulate` with the receivers as rows (:class:`ReceiverRows`: each row
+    computed as that receiver alone would compute its one epoch), and their sentences
+    rendered in one pass per output format.
+
+    Parameters
+    ----------
+    members : receivers whose next epoch is due
+    provider : the pose source (``pose_at(t, receiver_id)``)
+
+    Returns
+    -------
+    batches : (receivers, their Fixes (one row each, in that order), their epochs' bytes
+        (None: every sentence off)) per batch
+    """
+    groups: dict[tuple[int, float], list[LiveReceiver]] = {}
+    for m in members:
+        groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(m)
+    out = []
+    for (_, t_epoch), group in groups.items():
+        rx = group[0].rx
+        n = len(group)
+        t = np.array([t_epoch])
+        pos, vel, valid = poses_at(provider, t_epoch, [m.receiver_id for m in group])
+        pos = pos + np.array([m.offset_enu_m for m in group])
+        ant = np.where(valid[:, None], pos, 0.0)
+        sky = compute_sky(rx, t, ant[:, None, :]).rows()
+        last = group[0]._row
+        if last is not None and len(last[0].n_epochs) == n and all(
+                m._row is not None and m._row[0] is last[0] and m._row[1] == b
+                for b, m in enumerate(group)):
+            rows = last[0]  # (the same batch as last tick, its states untouched since)
+        else:
+            rows = ReceiverRows.stack([m.state for m in group], [m.rng for m in group],
+                                      rx.profile, group[0].n_sat)
+        fixes, rows = simulate(rx, np.full(n, t_epoch), pos, vel, valid, rows, None, sky=sky)
+        for b, m in enumerate(group):
+            m._row = (rows, b, rx.profile)
+        by_fmt: dict[nmea.NmeaFormat, list[int]] = {}
+        for b, m in enumerate(group):
+            if m.out_fmt is not None:
+                by_fmt.setdefault(m.out_fmt, []).append(b)
+        data: list[bytes | None] = [None] * n
+        for fmt, idx in by_fmt.items():
+            if len(idx) == n:
+                data = list(nmea.render_batch(fixes, fmt))
+            else:
+                for b in idx:
+                    data[b] = nmea.epoch_sentences(fixes, b, fmt)
+        out.append((group, fixes, data))
+    return out
+
+
+class StopEvent(threading.Event):
+    """A :class:`threading.Event` with a descriptor that turns readable once it is set, so a
+    loop waiting in ``select``/``epoll`` wakes at once (a signal handler's ``set`` would
+    otherwise wait for the loop's next timeout: an idle 1 Hz daemon then had to wake ten
+    times a second just to look at the flag)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+
+    def set(self) -> None:
+        super().set()
+        fd = self._fd
+        if fd >= 0:  # (after close the number may belong to another file: never write to it)
+            with contextlib.suppress(OSError):
+                os.eventfd_write(fd, 1)
+
+    def fileno(self) -> int:
+        """Return the descriptor, readable once set."""
+        return self._fd
+
+    def close(self) -> None:
+        """Close the descriptor (a later :meth:`set` still sets the flag)."""
+        fd, self._fd = self._fd, -1
+        if fd >= 0:
+            os.close(fd)
+
+
+class _SelectWaiter:
+    """Waits with ``select`` on the pose source and the devices' client-byte events (devices
+    with writer threads of their own: a single receiver's pty, a serial port)."""
+
+    def __init__(self, devices: list) -> None:
+        self.devices = devices
+
+    def wait(self, deadline_s: float, fds: list[int]) -> None:
+        fds = list(fds)
+        blind = False  # a device without a descriptor (pyserial's loop://): look every 0.1 s
+        for dev in self.devices:
+            get_fd = getattr(dev, "fileno", None)
+            fd = get_fd() if get_fd is not None else None
+            if fd is not None:
+                fds.append(fd)
+            else:
+                blind = True
+        timeout = max(0.0, deadline_s - time.monotonic())
+        if blind:
+            timeout = min(timeout, 0.1)
+        if fds:
+            select.select(fds, [], [], timeout)
+        else:
+            time.sleep(timeout)
+
+    def take_client_ready(self) -> list | None:
+        return None  # unknown: read every device
+
+
+def run_daemon(
+    rx: Receiver,
+    provider: PoseProvider,
+    device,
+    fmt: nmea.NmeaFormat,
+    clock: SimClock,
+    rng: np.random.Generator,
+    stop: threading.Event,
+    on_epoch: Callable[[Fixes, DaemonStats], None] | None = None,
+    max_epochs: int | None = None,
+    link: mtk.MtkLink | None | str = "profile",
+) -> DaemonStats:
+    """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs): one
+    receiver, :func:`run_receivers` with one member (see :class:`LiveReceiver` for the
+    command link).
+
+    Parameters
+    ----------
+    rx : the receiver
+    provider : pose source
+    device : output device (``write_epoch``, ``read_available``; optional ``fileno`` and
+        ``set_baud``), never blocking
+    fmt : NMEA format
+    clock : the simulated clock
+    rng : random generator
+    stop : set by the signal handlers to end the loop
+    on_epoch : called after each epoch with its Fixes and the counters
+    max_epochs : stop after this many epochs (tests)
+    link : the command link; ``"profile"`` (default) makes the profile's (see
+        :func:`make_link`), None for none
+
+    Returns
+    -------
+    stats : DaemonStats
+    """
+    member = LiveReceiver(rx, device, fmt, clock, rng, link)
+    cb = None if on_epoch is None else (lambda m, fixes, _: on_epoch(fixes, m.stats))
+    run_receivers([member], provider, clock, stop, cb, max_epochs)
+    return member.stats
+
+
+def run_receivers(
+    members: list[LiveReceiver],
+    provider: PoseProvider,
+    clock: SimClock,
+    stop: threading.Event,
+    on_epoch: Callable[[LiveReceiver, Fixes, int], None] | None = None,
+    max_epochs: int | None = None,
+    waiter=None,
+) -> None:
+    """The live loop of one or many receivers: each emits its epochs on whole multiples of its
+    period; receivers due at once are simulated together (:func:`epoch_skies`).
+
+    Between epochs the loop reads poses and the clients' commands as they arrive.
+
+    Parameters
+    ----------
+    members : the receivers
+    provider : pose source, ``pose_at(t, receiver_id)``
+    clock : the simulated clock
+    stop : set by the signal handlers to end the loop (one with a ``fileno``, as
+        :class:`StopEvent`, wakes the loop's waits at once)
+    on_epoch : called after each receiver's epoch with the receiver, the Fixes of its batch
+        and its row there
+    max_epochs : stop once every receiver has emitted this many epochs (tests)
+    waiter : what the loop waits in: ``wait(deadline_s, fds)`` and ``take_client_ready()``
+        (a :class:`virtualgps.run.fleet.ptyloop.PtyLoop` serving the devices; default: ``select``
+        on the pose source and the devices' own descriptors)
+    """
+    if waiter is None:
+        waiter = _SelectWaiter([m.device for m in members])
+    by_device = {id(m.device): m for m in members}
+    # A stop with a descriptor to wait on (StopEvent) lets the loop sleep until the next epoch;
+    # a plain Event is looked at every 0.1 s.
+    stop_fileno = getattr(stop, "fileno", None)
+    stop_fds = [stop_fileno()] if stop_fileno is not None else []
+    max_wait_s = math.inf if stop_fds else 0.1
+    # An epoch is computed this long before its time and sent at its time: the last ticks'
+    # cost (a fleet of a thousand takes tens of milliseconds), so its first byte leaves on time.
+    lead_s = 0.0
+    while not stop.is_set():
+        # Wait for the next epoch due, reading poses and the clients' commands as they come.
+        while not stop.is_set():
+            provider.pump()
+            ready = waiter.take_client_ready()
+            for m in members if ready is None else [by_device[id(d)] for d in ready]:
+                m.service_client()  # (may change a receiver's rate and next epoch)
+            t_due = min(m.t_next_unix_s for m in members)
+            deadline = clock.monotonic_at(t_due)
+            if deadline - lead_s <= time.monotonic():
+                break
+            waiter.wait(min(deadline - lead_s, time.monotonic() + max_wait_s),
+                        [*provider.fileno_list(), *stop_fds])
+        if stop.is_set():
+            break
+        due = [m for m in members if m.t_next_unix_s <= t_due + 1e-9]
+        c0 = time.monotonic()
+        batches = tick(due, provider)
+        spent_s = time.monotonic() - c0
+        lead_s = min(1.25 * max(spent_s, 0.8 * lead_s) + 0.002, 0.5 / max(m.rate for m in due))
+        while time.monotonic() < deadline and not stop.is_set():
+            waiter.wait(deadline, stop_fds)  # (the devices' writers are served meanwhile)
+        lateness = time.monotonic() - deadline
+        for group, fixes, data in batches:
+            for b, m in enumerate(group):
+                if lateness > 0.5 / m.rate:
+                    m.stats.late_epochs += 1
+                m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
+                m.sent(data[b], bool(fixes.quality[b] > 0))
+                if on_epoch is not None:
+                    on_epoch(m, fixes, b)
+        if max_epochs is not None and all(m.stats.epochs >= max_epochs for m in members):
+            break

@@ -1,0 +1,206 @@
+"""``virtualgps run`` for one receiver or many: assemble the receivers, their devices and the
+pose source, then run :func:`virtualgps.run.daemon.run_receivers`.
+
+One receiver and a fleet take the same path: a fleet of one is ``virtualgps run`` as it always
+was (device ``./virtualgps0``, seed ``--seed``). Receivers that share a profile share one
+:class:`~virtualgps.receiver.core.Receiver` (scene, walls, ephemeris), so they are simulated
+together.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from virtualgps.device import nmea, transport
+from virtualgps.exceptions import ConfigError
+from virtualgps.poses import pose, posesource
+from virtualgps.run import config, daemon
+from virtualgps.run.fleet.members import Member, fleet_members
+from virtualgps.run.fleet.ptyloop import PtyLoop
+
+log = logging.getLogger(__name__)
+
+# A fleet's ptys get up to 100 ms of line time per write (1 KiB at most): one wake-up per
+# epoch and device at 10 Hz instead of a USB adapter's 16 ms slices, which a thousand devices
+# could not afford. A single receiver keeps the 16 ms slices.
+FLEET_CHUNK_S = 0.1
+
+
+@dataclass
+class Fleet:
+    """A run's receivers, ready to start.
+
+    receivers : the live receivers, in the fleet's order
+    provider : the pose source (``pose_at(t, receiver_id)``)
+    waiter : the loop the daemon waits in (a PtyLoop serving the ptys, or None: select)
+    devices : the output devices (closed by :meth:`close`)
+    clock : the simulated clock
+    tle_path : the ephemeris file used
+    links : each receiver's link as given (None on a serial port)
+    """
+
+    receivers: list[daemon.LiveReceiver]
+    provider: daemon.PoseProvider
+    waiter: PtyLoop | None
+    devices: list
+    clock: daemon.SimClock
+    tle_path: str
+    links: list[str | None]
+
+    def close(self) -> None:
+        """Close every device (removing its link) and the pose source."""
+        try:
+            if self.waiter is not None:
+                self.waiter.close()
+            for dev in self.devices:
+                dev.close()
+        finally:
+            self.provider.close()
+
+
+def build_fleet(
+    flags: dict,
+    poses_spec: str,
+    link_pattern: str,
+    n_receivers: int | None = None,
+    fleet_file: str | None = None,
+    serial_port: str | None = None,
+    topic: str | None = None,
+) -> Fleet:
+    """Make the receivers, their devices and the pose source of ``virtualgps run``.
+
+    Parameters
+    ----------
+    flags : the run's command-line settings (see :func:`virtualgps.run.config.resolve`)
+    poses_spec : ``--poses``: ``udp://``, ``tcp://``, ``-``, a pose log, or ``demo``
+    link_pattern : ``--link`` (``{id}`` is the receiver's number)
+    n_receivers : ``--receivers``
+    fleet_file : ``--fleet``
+    serial_port : ``--serial`` (one receiver only)
+    topic : ``--topic`` for a ROS bag
+
+    Returns
+    -------
+    fleet : Fleet (its devices exist; nothing has been emitted)
+
+    Raises
+    ------
+    VirtualGPSError
+        with one line for bad settings or inputs.
+    """
+    cfg = config.resolve(flags)
+    members = fleet_members(n_receivers, fleet_file, cfg.seed, link_pattern)
+    if serial_port and len(members) > 1:
+        raise ConfigError("--serial drives one receiver; a fleet gets ptys (--link PATTERN)")
+    scene, georef, scene_tle = config.load_scene_for(cfg)
+    t_start = cfg.start_time_unix_s
+    ephemeris, tle_path = config.load_ephemeris(
+        cfg, scene_tle, daemon.SimClock(t_start).now_unix_s())
+    prof = cfg.profile
+    log.info("profile %s (%s), scene %s, seed %d, rate %g Hz, baud %d, %d receiver%s",
+             prof.name, prof.source, cfg.scene or config.DEFAULT_SCENE, cfg.seed,
+             prof.rate_hz, prof.baud, len(members), "s" if len(members) > 1 else "")
+
+    spec = poses_spec
+    ids = [m.receiver_id for m in members]
+    is_log = spec != "demo" and not spec.startswith(("udp://", "tcp://")) and spec != "-"
+    tracks = pose.read_pose_logs_by_id(Path(spec), topic) if is_log else None
+    if georef is None and tracks is not None:
+        first = next(iter(tracks.values()))
+        if first.frame != "geodetic":
+            config.require_georef(None, "geodetic poses")
+        georef = config.Georef(*(float(v) for v in first.xyz[0]))
+    elif georef is None:
+        # Open sky, live geodetic poses, no --origin. With exact WGS-84 geodesy the ENU frame's
+        # origin is arbitrary (the ECEF<->ENU round trip is exact), so any origin will do; the
+        # paper's flat earth needs a real one.
+        if prof.georef == "flat_earth":
+            config.require_georef(None, "a scene")
+        georef = config.Georef(0.0, 0.0, 0.0)
+
+    # One Receiver per distinct (profile, baud): receivers that share it are simulated together.
+    cfgs: dict[tuple, config.RunConfig] = {}
+    for m in members:
+        key = (m.profile, m.baud)
+        if key not in cfgs:
+            cfgs[key] = cfg if key == (None, None) else config.resolve(
+                {**flags, "profile": m.profile or flags.get("profile"),
+                 "baud": m.baud or flags.get("baud")})
+    t_guess = daemon.SimClock(t_start).now_unix_s()  # (for the sky-time policy)
+    rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t_guess)
+           for key, c in cfgs.items()}
+    fmts = {key: nmea.NmeaFormat.from_dict(c.profile.nmea) for key, c in cfgs.items()}
+    unknown = sorted(set(tracks or ()) - set(ids))
+    if unknown:
+        log.warning("%s has poses for receivers %s, which this run does not have: ignored",
+                    spec, ", ".join(map(str, unknown[:10])) + (" ..." if len(unknown) > 10 else ""))
+
+    devices: list = []
+    waiter = None if serial_port else PtyLoop()
+    provider = None
+    receivers = []
+    try:
+        for m in members:
+            p = cfgs[(m.profile, m.baud)].profile
+            if serial_port:
+                devices.append(transport.SerialDevice(serial_port, p.baud))
+            else:
+                pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
+                waiter.add(transport.PtyDevice(Path(m.link), baud=p.baud, threaded=False,
+                                               **pacing))
+        # The simulated clock starts once everything is loaded and made: with --start-time,
+        # the first epoch is the first on the grid after it, however long the set-up took.
+        clock = daemon.SimClock(t_start)
+        t0 = clock.now_unix_s()
+        # Logs and the demo walk start at --start-time exactly (else now): a receiver's poses
+        # are then the same in every run that starts there, to the bit.
+        provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock,
+                             t0 if t_start is None else t_start)
+        for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
+            key = (m.profile, m.baud)
+            receivers.append(daemon.LiveReceiver(
+                rxs[key], dev, fmts[key], clock,
+                np.random.default_rng(m.seed), receiver_id=m.receiver_id,
+                antenna_offset_enu_m=np.array(m.antenna_offset_enu_m), t_first_unix_s=t0))
+    except BaseException:
+        if waiter is not None:
+            waiter.close()
+        for dev in devices:
+            dev.close()
+        if provider is not None:
+            provider.close()
+        raise
+    links = [None if serial_port else m.link for m in members]
+    return Fleet(receivers, provider, waiter, devices, clock, str(tle_path), links)
+
+
+def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s: float,
+              clock: daemon.SimClock, t0: float) -> daemon.PoseProvider:
+    """The pose source of ``--poses`` for these receivers."""
+    ids = [m.receiver_id for m in members]
+    if spec == "demo":
+        waypoints = getattr(scene, "demo_waypoints_enu_m", None) if scene is not None else None
+        speed = getattr(scene, "demo_speed_mps", 1.4) if scene is not None else 1.4
+        if waypoints is None or len(waypoints) < 2:
+            # Open sky or a scene without [demo]: a 40 m square around the origin, 1.5 m up.
+            waypoints = np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5], [0, 40, 1.5]], float)
+        lap = daemon.demo_lap(np.asarray(waypoints, float), float(speed))
+        lap_s = float(lap.t_unix_s[-1])
+        # A fleet spreads out along the loop: receiver j of n starts j / n of a lap ahead.
+        return daemon.ReceiverPoses({
+            rid: daemon.LoopProvider(lap, t0 - j * lap_s / len(ids), max_gap_s)
+            for j, rid in enumerate(ids)})
+    if spec.startswith(("udp://", "tcp://")) or spec == "-":
+        return daemon.LiveProvider(posesource.open_pose_source(spec), georef, clock, max_gap_s,
+                                   receiver_ids=ids)
+    from virtualgps.run.replay import track_in_scene
+
+    # A fleet's log keeps its receivers' timing: all are replayed from the earliest pose.
+    scene_tracks = {rid: track_in_scene(tr, georef) for rid, tr in tracks.items() if rid in ids}
+    t_first = min((float(tr.t_unix_s[0]) for tr in scene_tracks.values()), default=0.0)
+    return daemon.ReceiverPoses({
+        rid: daemon.TrackProvider(tr, t0, max_gap_s, t_first) for rid, tr in scene_tracks.items()})
