@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from virtualgps.device import nmea
-from virtualgps.receiver.core import Georef
+from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import load_profile
 from virtualgps.run import daemon
 from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve

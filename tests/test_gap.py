@@ -140,12 +140,12 @@ def test_learned_sky_mask_attenuates_bins_tracked_weaker():
 
 
 def test_selfcheck_sector_lies_where_satellites_pass_low_inside_and_outside():
-    from virtualgps.gap import selfcheck
+    from virtualgps.gap import synthetic
 
     low = np.zeros(12)
     low[[2, 7]] = 2.0  # two satellites low in the sky at 60-90 deg, two at 210-240 deg
     for seed in range(20):
-        rows = np.array(selfcheck._sector(np.random.default_rng(seed), low))
+        rows = np.array(synthetic._sector(np.random.default_rng(seed), low))
         blocked = np.isinf(rows[0])
         assert 2 <= blocked.sum() <= 4 and blocked[2] != blocked[7]
 
@@ -387,14 +387,14 @@ def test_gap_takes_the_tle_set_replay_takes(shared_data):
 
 def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
     """Too short for guarded blocks: a plain warning, the located gaps alone, no effect."""
-    from virtualgps.gap import selfcheck, tool
+    from virtualgps.gap import synthetic, tool
     from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
     from virtualgps.sky.ephemeris import default_tle_path
     from virtualgps.sky.scene import load_scene
 
     scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
     scene = load_scene(scene_dir)
-    tr = selfcheck.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
+    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
                               str(default_tle_path()))
     lines = tr.real.read_text().splitlines()
     starts = [i for i, ln in enumerate(lines) if ln.startswith("$GPGGA")]

@@ -229,7 +229,7 @@ def test_flat_earth_misplaces_a_far_run_by_tens_of_metres():
     from types import SimpleNamespace
 
     from virtualgps import geodesy
-    from virtualgps.receiver.core import Georef
+    from virtualgps.receiver.definition import Georef
 
     g = Georef(37.4, -122.1, 0.0)
     enu = np.stack([np.linspace(0, 25_000, 200), np.linspace(0, 5_000, 200), np.zeros(200)], 1)

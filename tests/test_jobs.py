@@ -16,7 +16,7 @@ import pytest
 
 from virtualgps.gap import jobs
 from virtualgps.gap.ensemble import EnsembleJob, RunSetup, setup_digest, simulate_job
-from virtualgps.receiver.core import Georef
+from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import load_profile
 
 REPO = Path(__file__).resolve().parents[1]

@@ -803,7 +803,7 @@ def test_simulated_cold_start_prints_mtks_no_fix_fields_byte_for_byte(shared_dat
     import io
 
     from virtualgps.poses import pose
-    from virtualgps.receiver.core import Georef, Receiver
+    from virtualgps.receiver.definition import Georef, Receiver
     from virtualgps.receiver.profiles import load_profile
     from virtualgps.run.replay import epoch_grid, run_replay
     from virtualgps.sky.ephemeris import default_tle_path, load_tle

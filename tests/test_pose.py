@@ -19,6 +19,7 @@ import pytest
 from virtualgps import geodesy
 from virtualgps.device import nmea
 from virtualgps.exceptions import InputFileError, PoseError
+from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
 from virtualgps.poses.pose import Pose, PoseTrack
 
@@ -264,7 +265,7 @@ def test_jsonl_log(tmp_path):
         '{"t": 1.0, "x": 0, "y": 0, "z": 0}\n\n{"t": 2.0, "x": 1, "y": 0, "z": 0, "vx": 1}\n'
         '{"t": 2.0, "x": 9, "y": 9, "z": 9}\n'
     )
-    tr = pose.read_pose_log(p)
+    tr = pose_logs.read_pose_log(p)
     assert tr.frame == "enu" and tr.t_unix_s.tolist() == [1.0, 2.0]
     assert tr.xyz[1].tolist() == [1, 0, 0] and tr.vel_enu_mps[1, 0] == 1.0  # duplicate dropped
 
@@ -289,9 +290,9 @@ def test_uniform_jsonl_reads_as_line_by_line(tmp_path, geodetic, with_velocity):
     fast, slow = tmp_path / "fast.jsonl", tmp_path / "slow.jsonl"
     fast.write_text("".join(json.dumps(r) + "\n" for r in rows))
     slow.write_text("".join(json.dumps({**r, "note": "x"}) + "\n" for r in rows))
-    assert pose._jsonl_uniform(list(enumerate(fast.read_text().splitlines(), 1))) is not None
-    assert pose._jsonl_uniform(list(enumerate(slow.read_text().splitlines(), 1))) is None
-    a, b = pose.read_pose_log(fast), pose.read_pose_log(slow)
+    assert pose_logs._jsonl_uniform(list(enumerate(fast.read_text().splitlines(), 1))) is not None
+    assert pose_logs._jsonl_uniform(list(enumerate(slow.read_text().splitlines(), 1))) is None
+    a, b = pose_logs.read_pose_log(fast), pose_logs.read_pose_log(slow)
     assert a.frame == b.frame == ("geodetic" if geodetic else "enu")
     for x, y in ((a.t_unix_s, b.t_unix_s), (a.xyz, b.xyz), (a.vel_enu_mps, b.vel_enu_mps)):
         np.testing.assert_array_equal(x, y)
@@ -300,7 +301,7 @@ def test_uniform_jsonl_reads_as_line_by_line(tmp_path, geodetic, with_velocity):
         broken[7].update(bad)
         fast.write_text("".join(json.dumps(r) + "\n" for r in broken))
         with pytest.raises(InputFileError) as e:
-            pose.read_pose_log(fast)
+            pose_logs.read_pose_log(fast)
         assert e.value.line == 8
 
 
@@ -322,7 +323,7 @@ def test_jsonl_errors_name_file_and_line(tmp_path, text, line, what):
     p = tmp_path / "bad.jsonl"
     p.write_text(text)
     with pytest.raises(InputFileError) as e:
-        pose.read_pose_log(p)
+        pose_logs.read_pose_log(p)
     assert e.value.line == line and str(e.value).startswith(f"{p}:{line}: ")
     assert what in str(e.value)
 
@@ -330,19 +331,19 @@ def test_jsonl_errors_name_file_and_line(tmp_path, text, line, what):
 def test_csv_logs_enu_geodetic_msl_and_velocities(tmp_path):
     p = tmp_path / "a.csv"
     p.write_text("# exported\nt_unix_s, x, y, z, vx, vy, vz, note\n1,0,0,0,,,,a\n2,1,2,3,1,2,3,b\n")
-    tr = pose.read_pose_log(p)
+    tr = pose_logs.read_pose_log(p)
     assert tr.frame == "enu" and tr.xyz.tolist() == [[0, 0, 0], [1, 2, 3]]
     assert np.isnan(tr.vel_enu_mps[0]).all() and tr.vel_enu_mps[1].tolist() == [1, 2, 3]
 
     p = tmp_path / "b.csv"
     p.write_text("lat;lon;alt_msl;t\n52.14;11.64;55.0;1711630000\n")
-    tr = pose.read_pose_log(p)
+    tr = pose_logs.read_pose_log(p)
     assert tr.frame == "geodetic"
     assert abs(tr.xyz[0, 2] - (55.0 + float(geodesy.geoid_sep_m(52.14, 11.64)))) < MM
 
     p = tmp_path / "c.txt"  # detected from the content
     p.write_text("t,lat_deg,lon_deg,alt_hae_m\n1,52.14,11.64,98.0\n")
-    assert pose.read_pose_log(p).xyz.tolist() == [[52.14, 11.64, 98.0]]
+    assert pose_logs.read_pose_log(p).xyz.tolist() == [[52.14, 11.64, 98.0]]
 
 
 @pytest.mark.parametrize(
@@ -362,7 +363,7 @@ def test_csv_errors_name_file_and_line(tmp_path, text, line):
     p = tmp_path / "bad.csv"
     p.write_text(text)
     with pytest.raises(InputFileError) as e:
-        pose.read_pose_log(p)
+        pose_logs.read_pose_log(p)
     assert e.value.line == line and "expected" in str(e.value)
 
 
@@ -373,12 +374,12 @@ def test_tum_log(tmp_path):
         "1403636579.758 4.688 -1.786 0.783 -0.153 -0.827 -0.082 0.535\n"
         "1403636579.763 4.689 -1.786 0.787 -0.153 -0.827 -0.082 0.535\n"
     )
-    tr = pose.read_pose_log(p)
+    tr = pose_logs.read_pose_log(p)
     assert tr.frame == "enu" and len(tr) == 2 and tr.xyz[1].tolist() == [4.689, -1.786, 0.787]
     assert np.isnan(tr.vel_enu_mps).all()
     p.write_text("1 2 3 4 0 0 0 1\n2 2 3 4 0 0 1\n")
     with pytest.raises(InputFileError) as e:
-        pose.read_pose_log(p)
+        pose_logs.read_pose_log(p)
     assert e.value.line == 2 and "t x y z qx qy qz qw" in str(e.value)
 
 
@@ -386,13 +387,13 @@ def test_unknown_and_empty_logs(tmp_path):
     p = tmp_path / "what.txt"
     p.write_text("hello world\n")
     with pytest.raises(InputFileError, match="cannot tell the pose log format"):
-        pose.read_pose_log(p)
+        pose_logs.read_pose_log(p)
     p = tmp_path / "empty.jsonl"
     p.write_text("\n")
     with pytest.raises(InputFileError, match="no poses"):
-        pose.read_pose_log(p)
+        pose_logs.read_pose_log(p)
     with pytest.raises(InputFileError, match="cannot read"):
-        pose.read_pose_log(tmp_path / "missing.csv")
+        pose_logs.read_pose_log(tmp_path / "missing.csv")
 
 
 def test_nmea_log_as_geodetic_track(tmp_path):
@@ -404,7 +405,7 @@ def test_nmea_log_as_geodetic_track(tmp_path):
     ]
     p = tmp_path / "ref.log"
     p.write_text("".join(nmea.format_sentence(b) for b in body))
-    tr = pose.read_pose_log(p)
+    tr = pose_logs.read_pose_log(p)
     t0 = datetime(2017, 3, 26, 12, tzinfo=UTC).timestamp()
     assert tr.frame == "geodetic" and tr.t_unix_s.tolist() == [t0, t0 + 2]
     assert abs(tr.xyz[0, 0] - (52 + 8.4040 / 60)) < 1e-12
@@ -416,7 +417,7 @@ def test_nmea_log_as_geodetic_track(tmp_path):
 
 def test_real_span_reference_log(shared_data):
     path = shared_data / "gsdc-2020-05-14-mtv" / "SPAN_Pixel4_1Hz.nmea"
-    tr = pose.read_pose_log(path)
+    tr = pose_logs.read_pose_log(path)
     ref = [pynmea2.parse(ln, check=True) for ln in path.read_text().splitlines() if "GGA" in ln]
     ref = [m for m in ref if m.gps_qual > 0]
     assert len(tr) == len(ref) == 2120
@@ -437,7 +438,7 @@ def test_real_span_reference_log(shared_data):
 
 def test_real_magdeburg_phone_log_with_prefixes(shared_data):
     path = sorted((shared_data / "magdeburg-campus" / "nmea").glob("NMEA_Log__*.txt"))[0]
-    tr = pose.read_pose_log(path)
+    tr = pose_logs.read_pose_log(path)
     assert tr.frame == "geodetic" and len(tr) > 0
     # on the campus (the mesh origin is 52.1400665, 11.643243): within 1 km
     e, n, _ = pymap3d.geodetic2enu(

@@ -9,7 +9,8 @@ import pytest
 
 from virtualgps import geodesy
 from virtualgps.device import nmea
-from virtualgps.receiver.core import Georef, Receiver, dop, select_used, simulate, usarsim_sigma_m
+from virtualgps.receiver.core import dop, select_used, simulate, usarsim_sigma_m
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.state import ReceiverState
 

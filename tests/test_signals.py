@@ -8,7 +8,8 @@ import pytest
 
 from tests.test_receiver import GEOREF, FixedSky, WallOnAzimuth
 from virtualgps.receiver import signals
-from virtualgps.receiver.core import Receiver, simulate
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Receiver
 from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.state import ReceiverState
 
@@ -196,7 +197,7 @@ def test_nlos_excess_path_equals_the_image_method(two_walls):
 
 def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls):
     from virtualgps import geodesy
-    from virtualgps.receiver.core import Georef
+    from virtualgps.receiver.definition import Georef
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 
@@ -303,7 +304,8 @@ def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
 
 
 def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
-    from virtualgps.receiver.core import Georef, expected_cn0_dbhz
+    from virtualgps.receiver.core import expected_cn0_dbhz
+    from virtualgps.receiver.definition import Georef
     from virtualgps.receiver.skyview import compute_sky
 
     g = Georef(narrow_reflector.lat_deg, narrow_reflector.lon_deg, narrow_reflector.alt_hae_m)
@@ -333,7 +335,7 @@ def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
 
 def test_foliage_attenuation_is_the_length_through_the_crown_times_the_rate():
     from virtualgps import geodesy
-    from virtualgps.receiver.core import Georef
+    from virtualgps.receiver.definition import Georef
     from virtualgps.receiver.skyview import compute_sky
     from virtualgps.run.config import BUNDLED_SCENES_DIR
     from virtualgps.sky.scene import load_scene
@@ -379,7 +381,7 @@ def test_wall_distance_is_to_the_nearest_footprint_above_the_antenna(two_walls):
 
 
 def test_multipath_in_the_receiver_acts_near_a_wall_and_not_far_from_it(two_walls):
-    from virtualgps.receiver.core import Georef
+    from virtualgps.receiver.definition import Georef
 
     g = Georef(two_walls.lat_deg, two_walls.lon_deg, two_walls.alt_hae_m)
 

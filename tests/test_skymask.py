@@ -14,11 +14,13 @@ from tests.test_receiver import GEOREF, FixedSky
 from virtualgps.cli import main, sky_rows
 from virtualgps.device import nmea
 from virtualgps.exceptions import InputFileError
-from virtualgps.receiver.core import Receiver, simulate
-from virtualgps.receiver.profiles import load_profile, read_toml
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Receiver
+from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.skyview import compute_sky
 from virtualgps.receiver.state import ReceiverState
 from virtualgps.sky import skymask
+from virtualgps.tomlfile import read_toml
 
 INF = float("inf")
 # Five satellites in 90 x 30 deg bins: PRN 1 alone in (el 0-30, az 0-90), PRN 3 alone in

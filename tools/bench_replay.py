@@ -49,7 +49,7 @@ import numpy as np
 
 from virtualgps.cli import main as cli_main
 from virtualgps.device import nmea
-from virtualgps.poses import pose
+from virtualgps.poses import logs as pose_logs
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.state import ReceiverState
 from virtualgps.run import config, replay
@@ -104,7 +104,7 @@ def bench_core(
     t0 = time.perf_counter()
     cfg = config.resolve({"profile": profile, "config": cfg_file})
     scene, georef, tle = config.load_scene_for(cfg)
-    walk = pose.read_pose_log(poses)
+    walk = pose_logs.read_pose_log(poses)
     eph, _ = config.load_ephemeris(cfg, tle, float(walk.t_unix_s[0]))  # (the set replay takes)
     track = replay.track_in_scene(walk, georef)
     grid = replay.epoch_grid(track.t_unix_s, cfg.profile.rate_hz, None)

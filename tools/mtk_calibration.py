@@ -50,7 +50,7 @@ from virtualgps.device.nmea import NmeaEpochs, nmea_epochs_from_lines, read_nmea
 from virtualgps.gap.ingest import take_epochs
 from virtualgps.gap.metrics import ELEVATION_BINS_DEG, median_position, summary
 from virtualgps.poses import pose
-from virtualgps.receiver.core import Georef, Receiver
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import Profile, load_profile
 from virtualgps.receiver.skyview import compute_sky
 from virtualgps.run.replay import epoch_grid, run_replay, track_in_scene

@@ -14,7 +14,8 @@ import argparse
 import numpy as np
 
 from virtualgps import geodesy
-from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.state import ReceiverState
 from virtualgps.sky.ephemeris import default_tle_path, load_tle

@@ -330,12 +330,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from virtualgps.device import nmea
-    from virtualgps.poses import pose
+    from virtualgps.poses import logs as pose_logs
     from virtualgps.run import config, replay
 
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
-    track = pose.read_pose_log(Path(args.poses), args.topic)
+    track = pose_logs.read_pose_log(Path(args.poses), args.topic)
     t_first = cfg.start_time_unix_s if cfg.start_time_unix_s is not None else track.t_unix_s[0]
     ephemeris, _ = config.load_ephemeris(cfg, scene_tle, float(t_first))
     if georef is None:
@@ -525,7 +525,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
         raise VirtualGPSError(f"--out {out}: exists and is not a folder")
     progress = _status(sys.stderr)
     if args.selfcheck:
-        from virtualgps.gap import selfcheck
+        from virtualgps.gap import selfcheck, synthetic
 
         data = Path(args.data) if args.data else Path("..") / "shared" / "data"
         if args.data and not data.is_dir():
@@ -533,7 +533,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
         try:
             labels = selfcheck.default_labels(opts.effects)
             for label in labels:
-                selfcheck.spec_of(label)
+                synthetic.spec_of(label)
         except (KeyError, ValueError) as exc:
             raise VirtualGPSError(f"--effects: {exc}") from None
         result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress,

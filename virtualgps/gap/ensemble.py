@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import Profile
 from virtualgps.receiver.skyview import Sky, compute_sky
 from virtualgps.receiver.state import initial_state, running_state

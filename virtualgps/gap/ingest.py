@@ -30,8 +30,9 @@ from virtualgps.device.nmea import (
 )
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.gap.metrics import median_position
+from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
-from virtualgps.receiver.core import Georef
+from virtualgps.receiver.definition import Georef
 
 TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs between unknown
 MOVING_PATH_M = 30.0  # a truth whose path is longer than this "moves": its clock offset is sought
@@ -113,7 +114,7 @@ def parse_truth(spec: str) -> Truth:
     if not path.exists():
         raise ConfigError(f"--truth {spec!r}: no such file; give a pose log, 'static' or "
                           "static:LAT,LON,ALT_HAE")
-    return Truth("track", pose.read_pose_log(path), source=spec)
+    return Truth("track", pose_logs.read_pose_log(path), source=spec)
 
 
 def _line_census(lines: list[str]) -> tuple[Counter, Counter]:

@@ -25,7 +25,7 @@ from virtualgps.gap.where import (
     printed_step,
     quantize,
 )
-from virtualgps.receiver.core import Georef
+from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import Profile
 
 SCENE_REACH_M = 5000.0

@@ -1,417 +1,61 @@
 """The withheld-effect check of the diagnosis itself (``virtualgps gap --selfcheck``, DESIGN
-section 7.4).
+section 7.4): runs the diagnosis on the synthetic trials (:mod:`.synthetic`) and on real logs
+with an effect injected (:mod:`.selfcheck_real`), and sums them up.
 
-For every effect the check can inject: pseudo-real logs are made by the simulator with the
-effect switched on at known parameters (drawn per trial), on a fresh trajectory (static or
-moving, open sky or the bundled campus, a time drawn near the TLE set's epoch) with a fresh
-seed, written as NMEA and read back like a real log; then the same diagnosis as ``virtualgps
-gap`` runs on them with the effect withheld from the profile. A trial succeeds when the
-injected effect is ranked first (``ranked[0]``: the first effect added, else the candidate with
-the lowest held-out gap); the confusion matrix counts injected x ranked first, a second one
-injected x added first (``none`` where no effect clears the acceptance rule), and the recovered
-parameters and the held-out shrinkage are reported.
-
-The profile under test is ``holux-m1000`` with the effect switched off (for its own effects) or
-as it is (for the effects it lacks); ``noise_level`` and ``dop_error``, which change the
-baseline error, are checked on ``usarsim``; ``multipath`` on ``ideal`` with ``dop_error`` (white
-errors of its own, against which metres of error on the low satellites stand out; the
-``holux-m1000``'s minutes-long correlated error hides them in a 15-minute log). Each effect is
-checked where its signature can show at the drawn parameters: ``nlos`` near the campus's walls;
-``multipath`` in open sky, where the low satellites it acts on are received directly (between
-the campus's buildings they are blocked, and the ones received, above ~22 deg, get a tenth of
-it); ``latency`` and
-``nav_filter`` on vehicle paths (at walking speed their lag, 1-4 m, is below a receiver's
-error between buildings); a blocked sky sector in open sky (between buildings the mesh blocks
-much of it already).
+A trial succeeds when the injected effect is ranked first (``ranked[0]``: the first effect
+added, else the candidate with the lowest held-out gap; ``nothing`` for a log with nothing
+injected); the confusion matrix counts injected x ranked first, a second one injected x added
+first (``none`` where no effect clears the acceptance rule), and the recovered parameters, the
+held-out shrinkage and the band's calibration under the null are reported.
 """
 
 from __future__ import annotations
 
-import io
-import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-
-from virtualgps import geodesy
-from virtualgps.device import nmea
 from virtualgps.gap import diagnose as dg
-from virtualgps.gap import effects as fx
-from virtualgps.poses import pose
-from virtualgps.receiver.core import Georef, Receiver
-from virtualgps.receiver.profiles import load_profile_dict
-from virtualgps.receiver.skyview import compute_sky
-from virtualgps.run.replay import epoch_grid, run_replay
-
-DURATION_S = 900.0  # each pseudo-real run: 15 minutes at 1 Hz
-SEED_BASE = 100_000  # pseudo-real seeds lie far from the diagnosis' seeds 0..N
-NOTHING = "nothing"  # what a diagnosis that adds no effect ranks first
-
-
-@dataclass(frozen=True)
-class Injection:
-    """How one effect is injected.
-
-    base : the profile under test; withhold : tables that switch the effect off in it
-    draw : (rng, low_sats) -> the injected tables (known parameters); low_sats: (12,) the
-        run's mean number of satellites below 30 deg elevation per 30 deg of azimuth
-    scenarios : the trajectories it is checked on (cycled over trials)
-    """
-
-    base: str
-    withhold: dict
-    draw: Callable[[np.random.Generator, np.ndarray], dict]
-    scenarios: tuple[str, ...]
-
-
-def _u(rng: np.random.Generator, lo: float, hi: float, nd: int = 1) -> float:
-    return round(float(rng.uniform(lo, hi)), nd)
-
-
-def _sector(rng: np.random.Generator, low_sats: np.ndarray) -> list[list[float]]:
-    """A blocked sky sector (a wall or a vehicle the scene lacks): 60-120 deg of azimuth from
-    the horizon to 30-45 deg of elevation, in 30 x 15 deg bins.
-
-    It is placed where the run's satellites pass below 30 deg both inside it and outside it
-    (``low_sats``: (12,) mean number of satellites below 30 deg per 30 deg of azimuth): a
-    sector that one satellite crosses for a few minutes leaves next to no trace in a log, and
-    one that holds every low satellite is the same, in the log, as a higher elevation mask.
-    Without such a place, anywhere.
-    """
-    width, rows = int(rng.integers(2, 5)), int(rng.integers(2, 4))
-    inside = np.array([[(c - s) % 12 < width for c in range(12)] for s in range(12)])
-    low = np.asarray(low_sats, dtype=float)
-    fits = np.flatnonzero(((inside * low).sum(1) >= MIN_SECTOR_SATS)
-                          & ((~inside * low).sum(1) >= MIN_SECTOR_SATS))
-    start = int(rng.choice(fits)) if fits.size else int(rng.integers(0, 12))
-    row = [math.inf if inside[start, c] else 0.0 for c in range(12)]
-    return [list(row) for _ in range(rows)]
-
-
-MIN_SECTOR_SATS = 1.5  # mean satellites below 30 deg inside (and outside) a blocked sector
-
-
-INJECTIONS: dict[str, Injection] = {
-    "correlated_error": Injection(
-        "holux-m1000", {"correlated_error": {"enabled": False}},
-        lambda r, _: {"correlated_error": {"enabled": True, "domain": "range",
-                                           "tau_s": _u(r, 80, 400, 0), "sigma_m": _u(r, 2.5, 5)}},
-        ("static_open", "moving_open", "static_built")),
-    "cold_start": Injection(
-        "holux-m1000", {"cold_start": {"enabled": False}},
-        lambda r, _: {"cold_start": {"enabled": True, "power_on": "cold",
-                                     "ttff_cold_s": _u(r, 25, 60, 0)}},
-        ("static_open", "moving_open", "static_built")),
-    "cn0_tracking": Injection(
-        "holux-m1000", {"cn0_tracking": {"enabled": False}},
-        lambda r, _: {"cn0_tracking": {"enabled": True, "cn0_zenith_dbhz": _u(r, 35, 41, 0),
-                                       "horizon_loss_db": _u(r, 16, 24, 0)}},
-        ("static_open", "moving_open", "static_built")),
-    "nlos": Injection(
-        "holux-m1000", {"nlos": {"enabled": False}},
-        lambda r, _: {"nlos": {"enabled": True, "scattering": True, "max_dist_m": 50.0,
-                               "reflection_loss_db": _u(r, 4, 8, 0)}},
-        ("moving_built",)),
-    "multipath": Injection(
-        "ideal", {"dop_error": {"enabled": True}},
-        lambda r, _: {"multipath": {"enabled": True, "sigma_m": _u(r, 10, 20), "tau_s": 30.0,
-                                    "open_sky_factor": 1.0}},
-        ("static_open",)),
-    "latency": Injection(
-        "holux-m1000", {},
-        lambda r, _: {"latency": {"enabled": True, "latency_s": _u(r, 0.5, 2.0, 2)}},
-        ("moving_open",)),
-    "nav_filter": Injection(
-        "holux-m1000", {},
-        lambda r, _: {"nav_filter": {"enabled": True, "tau_s": _u(r, 1.5, 4.0)}},
-        ("moving_open",)),
-    "static_hold": Injection(
-        "holux-m1000", {},
-        lambda r, _: {"static_hold": {"enabled": True, "threshold_mps": _u(r, 0.6, 1.5)}},
-        ("moving_open", "moving_built")),
-    "sbas": Injection(
-        "holux-m1000", {},
-        lambda r, _: {"sbas": {"enabled": True}},
-        ("static_open", "moving_open", "static_built")),
-    "elevation_mask": Injection(
-        "holux-m1000", {},
-        lambda r, _: {"sky": {"elevation_mask_deg": _u(r, 15, 25, 0)}},
-        ("static_open", "moving_open")),
-    "sky_mask": Injection(
-        "holux-m1000", {},
-        lambda r, low: {"sky_mask": {"enabled": True, "az_bin_deg": 30.0, "el_bin_deg": 15.0,
-                                  "atten_db": _sector(r, low)}},
-        ("static_open", "moving_open")),
-    "noise_level": Injection(
-        "usarsim", {},
-        lambda r, _: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
-        ("static_open", "moving_open")),
-    "dop_error": Injection(
-        "usarsim", {},
-        lambda r, _: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
-        ("static_open", "moving_open")),
-}
-
+from virtualgps.gap.synthetic import (
+    INJECTIONS,
+    NOTHING,
+    NULL_SCENARIOS,
+    PAIRS,
+    _row,
+    make_trial,
+    spec_of,
+)
 
 # --- trajectories ------------------------------------------------------------------------------
 
 
-def _moving_enu(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
-    """(n, 3) ENU positions of a vehicle-like path: legs at 2-10 m/s with turns, slow spells
-    (0-0.3 m/s) and stops in between (accelerations, turns and crawls: what latency,
-    nav_filter and static_hold show up in)."""
-    n = t.size
-    speed = np.zeros(n)
-    heading = np.zeros(n)
-    i, h = 0, rng.uniform(0, 2 * np.pi)
-    while i < n:
-        leg = int(rng.uniform(40, 120))
-        v = rng.uniform(2.0, 10.0)
-        turn = rng.uniform(-0.05, 0.05)  # rad/s
-        k = np.arange(min(leg, n - i))
-        speed[i : i + k.size] = v * np.minimum(1.0, (k + 1) / 8.0)  # accelerate over ~8 s
-        heading[i : i + k.size] = h + turn * k
-        h = heading[i + k.size - 1]
-        i += k.size
-        slow = int(rng.uniform(10, 30))
-        speed[i : i + slow] = rng.uniform(0.0, 0.3)
-        heading[i : i + slow] = h
-        i += slow
-    dt = np.diff(t, prepend=t[0])
-    east = np.cumsum(speed * np.sin(heading) * dt)
-    north = np.cumsum(speed * np.cos(heading) * dt)
-    return np.stack([east, north, np.zeros(n)], axis=1)
 
 
-def _walk_in_scene(scene, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
-    """(n, 3) ENU: along the scene's demo waypoints (streets between the buildings), from a
-    random start, at 1-4 m/s with stops, 1.5 m above the ground."""
-    wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)
-    loop = np.vstack([wp, wp[:1]])
-    seg = np.linalg.norm(np.diff(loop[:, :2], axis=0), axis=1)
-    s_knots = np.concatenate([[0.0], np.cumsum(seg)])
-    speed = np.where((t - t[0]) % 120.0 < 100.0, rng.uniform(1.0, 4.0), 0.0)
-    s = (rng.uniform(0, s_knots[-1]) + np.cumsum(speed * np.diff(t, prepend=t[0]))) % s_knots[-1]
-    xy = np.stack([np.interp(s, s_knots, loop[:, a]) for a in (0, 1)], axis=1)
-    up = scene.ground_height_m(xy[:, 0], xy[:, 1]) + 1.5
-    return np.column_stack([xy, up])
 
 
-def _static_in_scene(scene, rng: np.random.Generator, n: int) -> np.ndarray:
-    """(n, 3) ENU: a random point near the demo walk 3-10 m from a wall (where buildings block
-    and reflect), 1.5 m above the ground."""
-    from virtualgps.receiver.signals import Facades
-    from virtualgps.sky.scene import CLASS_OCCLUDER
-
-    wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)
-    sel = scene.face_class == CLASS_OCCLUDER
-    walls = Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
-    a = rng.integers(0, len(wp), 64)
-    xy = wp[a, :2] + rng.uniform(0, 1, (64, 1)) * (wp[(a + 1) % len(wp), :2] - wp[a, :2])
-    xy = xy + rng.normal(0, 8, (64, 2))
-    up = scene.ground_height_m(xy[:, 0], xy[:, 1]) + 1.5
-    pts = np.column_stack([xy, up])
-    d = walls.wall_dist_m(pts, 30.0)
-    good = np.flatnonzero((d >= 3.0) & (d <= 10.0))
-    k = int(good[0]) if good.size else int(np.argmin(np.abs(d - 6.0)))
-    return np.tile(pts[k], (n, 1))
 
 
-def _low_sats(rx: Receiver, t: np.ndarray, enu: np.ndarray) -> np.ndarray:
-    """(12,) mean number of satellites above the mask and below 30 deg, per 30 deg of
-    azimuth."""
-    sky = compute_sky(rx, t, enu)
-    low = sky.above_mask & (sky.el_deg < 30.0)
-    col = (np.nan_to_num(sky.az_deg[low]) % 360.0 // 30.0).astype(int)
-    return np.bincount(np.clip(col, 0, 11), minlength=12) / len(t)
 
 
-@dataclass(frozen=True)
-class Spec:
-    """What one kind of trial injects: its label, the profile under test, the tables that
-    withhold the effects from it, and the effects injected (none for a null trial).
-
-    kind : "single", "pair" or "null"; effects : the injected effects' names
-    scenarios : the trajectories it is checked on (cycled over trials)
-    """
-
-    label: str
-    kind: str
-    base: str
-    withhold: dict
-    effects: tuple[str, ...]
-    scenarios: tuple[str, ...]
 
 
-def spec_of(label: str) -> Spec:
-    """The trial spec of an effect name, a pair ``a+b`` of effects or ``nothing@PROFILE``."""
-    if label.startswith(NOTHING):
-        base = label.partition("@")[2] or "holux-m1000"
-        return Spec(label, "null", base, {}, (), NULL_SCENARIOS[base])
-    names = tuple(label.split("+"))
-    injs = [INJECTIONS[n] for n in names]
-    if len({i.base for i in injs}) != 1:
-        raise ValueError(f"{label}: the effects are checked on different profiles")
-    common = tuple(sc for sc in injs[0].scenarios if all(sc in i.scenarios for i in injs))
-    withhold: dict = {}
-    for i in injs:
-        withhold = fx.apply(withhold, i.withhold)
-    return Spec(label, "pair" if len(names) > 1 else "single", injs[0].base, withhold, names,
-                common or injs[0].scenarios)
 
 
-# Null trials: logs made by the profile under test itself, in each kind of place.
-NULL_SCENARIOS = {"holux-m1000": ("static_open", "moving_open", "static_built", "moving_built"),
-                  "usarsim": ("static_open", "moving_open")}
-# Two effects at once, on the profile both are withheld from, where both can show.
-PAIRS = ("cold_start+latency", "cn0_tracking+static_hold")
 
 
-@dataclass(frozen=True)
-class Trial:
-    """One pseudo-real run, written to files the diagnosis reads."""
-
-    label: str
-    index: int
-    scenario: str
-    injected: dict
-    real: Path
-    truth: str
-    scene: str | None
-    tle: str
-    profile: Path
 
 
-def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
-               open_tle: str) -> Trial:
-    """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial."""
-    from virtualgps.sky.ephemeris import load_tle
-
-    spec = spec_of(label)
-    rng = np.random.default_rng([SEED_BASE, _label_index(label), index])
-    scenario = spec.scenarios[index % len(spec.scenarios)]
-    built = scenario.endswith("built")
-    tle = scene_tle if built else open_tle
-    eph = load_tle(tle)
-    t0 = float(np.floor(eph.epoch_center_unix_s + rng.uniform(-2, 2) * 86400.0))
-    t = t0 + np.arange(DURATION_S + 1.0)
-    if built:
-        georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
-        enu = (_walk_in_scene(scene, rng, t) if scenario.startswith("moving")
-               else _static_in_scene(scene, rng, t.size))
-    else:
-        georef = Georef(round(float(rng.uniform(-55, 55)), 4),
-                        round(float(rng.uniform(-180, 180)), 4), 100.0)
-        enu = _moving_enu(rng, t) if scenario.startswith("moving") else np.zeros((t.size, 3))
-    base, _ = load_profile_dict(spec.base)
-    withheld = fx.apply(base, spec.withhold)
-    injected: dict = {}
-    if spec.effects:
-        low = _low_sats(Receiver(fx.build(withheld), eph, scene if built else None, georef), t,
-                        enu)
-        for name in spec.effects:
-            injected = fx.apply(injected, INJECTIONS[name].draw(rng, low))
-    real_prof = fx.build(fx.apply(withheld, injected), f"selfcheck {label}")
-    rx = Receiver(real_prof, eph, scene if built else None, georef)
-    track = pose.PoseTrack(t, "enu", enu, np.full(enu.shape, np.nan))
-    buf = io.BytesIO()
-    fmt = nmea.NmeaFormat.from_dict(real_prof.nmea)
-    run_replay(rx, track, epoch_grid(t, real_prof.rate_hz, None), fmt, buf,
-               SEED_BASE + 1000 * _label_index(label) + index)
-    tag = f"{label.replace('@', '-').replace('+', '-')}-{index}"
-    work.mkdir(parents=True, exist_ok=True)
-    real = work / f"{tag}.nmea"
-    real.write_bytes(buf.getvalue())
-    ecef = geodesy.enu_to_ecef(enu, georef.lat0_deg, georef.lon0_deg, georef.alt0_hae_m)
-    lat, lon, alt = geodesy.ecef_to_geodetic(ecef)
-    if scenario.startswith("static"):
-        truth = f"static:{lat[0]:.9f},{lon[0]:.9f},{alt[0]:.3f}"
-    else:
-        truth_path = work / f"{tag}-truth.jsonl"
-        truth_path.write_text("".join(
-            json.dumps({"t": float(ti), "lat": float(a), "lon": float(b), "alt": float(c)}) + "\n"
-            for ti, a, b, c in zip(t, lat, lon, alt, strict=True)))
-        truth = str(truth_path)
-    prof_path = work / f"{tag}-profile.toml"
-    withheld = dict(withheld, name=f"{spec.base}-without-{label}" if spec.effects
-                    else spec.base)
-    prof_path.write_text(fx.to_toml(withheld), encoding="utf-8")
-    return Trial(label, index, scenario, injected, real, truth,
-                 scene_dir if built else None, tle, prof_path)
 
 
-def _label_index(label: str) -> int:
-    """A stable number per trial label (the trial's random streams)."""
-    if label in INJECTIONS:
-        return list(INJECTIONS).index(label)
-    return 100 + sum((k + 1) * ord(c) for k, c in enumerate(label)) % 10_000
 
 
-def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict]:
-    """The fitted parameters of the injected effects as the report gives them, and their
-    near-optimal intervals (the grid points within the seeds' noise of the best)."""
-    params, intervals = {}, {}
-    for e in report["effects"]:
-        if e["name"] in names and e.get("accepted"):
-            params.update(e["params"])
-            intervals.update((e.get("fit") or {}).get("intervals", {}))
-    return params, intervals
 
 
-def covered(injected: dict, intervals: dict) -> dict[str, bool]:
-    """Per numeric injected parameter with an interval: does the interval hold it? (An
-    interval is a set of grid points: a value between two neighbouring points counts as held
-    when it lies within the interval's span widened to those neighbours.)"""
-    out = {}
-    for k, v in injected.items():
-        iv = intervals.get(k)
-        if isinstance(v, int | float) and not isinstance(v, bool) and isinstance(iv, list) \
-                and len(iv) == 2 and all(isinstance(x, int | float) for x in iv):
-            out[k] = bool(iv[0] - 1e-9 <= v <= iv[1] + 1e-9)
-    return out
 
 
-def _flat(tables: dict) -> dict:
-    out: dict[str, Any] = {}
-    for t in tables.values():
-        out.update({k: v for k, v in t.items() if k != "enabled"})
-    return out
 
 
-def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dict:
-    """The self-check's record of one trial."""
-    accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
-    # "nothing" ranks after the added effects and before every candidate not added
-    ranked = accepted + [NOTHING] + [e["name"] for e in report["effects"]
-                                     if not e.get("accepted")]
-    params, intervals = recovered(effects, report)
-    injected = _flat(trial.injected)
-    where = report["where"]
-    if kind == "null":
-        success = ranked[0] == NOTHING
-    elif kind == "pair":
-        success = set(accepted[:len(effects)]) == set(effects)
-    else:
-        success = ranked[0] == effects[0]
-    outer = report.get("outer") or {}
-    return {
-        "injected": trial.label, "kind": kind, "effects": list(effects),
-        "scenario": trial.scenario, "params": injected, "ranked": ranked,
-        "accepted": accepted, "ranked_first": ranked[0],
-        "added_first": accepted[0] if accepted else NOTHING, "success": success,
-        "recovered": params, "recovered_interval": intervals,
-        "covered": covered(injected, intervals),
-        "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
-        "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
-        "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
-        "causes": [c["name"] for c in report.get("causes", [])
-                   if c.get("applied") or c["name"] == "georeference_model"],
-        "real": str(trial.real), "truth": trial.truth,
-    }
 
 
 def default_labels(effects: tuple[str, ...] | None) -> list[str]:

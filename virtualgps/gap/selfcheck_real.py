@@ -32,6 +32,7 @@ from virtualgps import geodesy
 from virtualgps.device.nmea import nmea_checksum, read_text_lines
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap.ingest import read_real_log
+from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
 
 GSDC = "gsdc-2020-05-14-mtv"
@@ -146,7 +147,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
         effects: tuple[str, ...] = REAL_EFFECTS) -> tuple[list[dict], str | None]:
     """The real-log trials of ``effects`` (of :data:`REAL_EFFECTS`): (rows for
     ``selfcheck.json``, a note when the data are missing)."""
-    from virtualgps.gap import selfcheck, tool
+    from virtualgps.gap import synthetic, tool
 
     d = Path(data) / GSDC
     real, truth = d / "Pixel4_chipset.nmea", d / "SPAN_Pixel4_1Hz.nmea"
@@ -170,11 +171,11 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
     t, lat, lon = ep.t_unix_s[fix], ep.lat_deg[fix], ep.lon_deg[fix]
     speed = np.nan_to_num(ep.speed_mps[fix])
     lines = read_text_lines(real)
-    track = pose.read_pose_log(truth)
+    track = pose_logs.read_pose_log(truth)
     rows = []
     for effect in effects:
         for i in range(trials):
-            rng = np.random.default_rng([selfcheck.SEED_BASE, 77, REAL_EFFECTS.index(effect), i])
+            rng = np.random.default_rng([synthetic.SEED_BASE, 77, REAL_EFFECTS.index(effect), i])
             tag = f"real-gsdc-{effect}-{i}"
             if effect == "truth_offset":
                 ang = rng.uniform(0, 2 * np.pi)
@@ -209,14 +210,14 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                        "static_hold": "threshold_mps"}[effect]
                 injected = {key: value}
                 added = [e["name"] for e in report["effects"] if e.get("accepted")]
-                params, intervals = selfcheck.recovered((effect,), report)
+                params, intervals = synthetic.recovered((effect,), report)
                 new = [a for a in added if a not in base_added]
-                cov = selfcheck.covered(injected, intervals)
+                cov = synthetic.covered(injected, intervals)
                 success = bool((new and new[0] == effect)
                                or (effect in base_added and effect in added and cov.get(key)))
                 recovered = params
             accepted = [e["name"] for e in report["effects"] if e.get("accepted")]
-            ranked = [a for a in accepted if a not in base_added] or [selfcheck.NOTHING]
+            ranked = [a for a in accepted if a not in base_added] or [synthetic.NOTHING]
             first = (("truth_offset" if success else ranked[0]) if effect == "truth_offset"
                      else ranked[0])
             rows.append({
@@ -226,7 +227,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "ranked_first": first, "added_first": ranked[0], "success": success,
                 "recovered": recovered,
                 "recovered_interval": ({} if effect == "truth_offset" else intervals),
-                "covered": ({} if effect == "truth_offset" else selfcheck.covered(injected,
+                "covered": ({} if effect == "truth_offset" else synthetic.covered(injected,
                                                                                  intervals)),
                 "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
                 "outer_reduction": (report.get("outer") or {}).get("reduction"),

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from virtualgps.exceptions import InputFileError
+from virtualgps.poses.pose import PoseTrack
 
 POSE_TYPES = {
     "geometry_msgs/msg/PoseStamped": "enu",
@@ -62,8 +63,6 @@ def read_bag(path: str | Path, topic: str | None = None):
         naming the bag: rosbags missing, an unreadable bag, no pose topic, several without
         ``--topic`` (naming them), a topic that is not there or not a pose.
     """
-    from virtualgps.poses import pose
-
     p = Path(path)
     try:
         from rosbags.highlevel import AnyReader
@@ -97,7 +96,7 @@ def read_bag(path: str | Path, topic: str | None = None):
     xyz_arr = np.asarray(xyz, dtype=float)[order]
     keep = np.ones(t_arr.size, bool)
     keep[1:] = np.diff(t_arr) > 0  # an exact repeat of the previous time is dropped
-    return pose.PoseTrack(t_arr[keep], frame, xyz_arr[keep], np.full((keep.sum(), 3), np.nan))
+    return PoseTrack(t_arr[keep], frame, xyz_arr[keep], np.full((keep.sum(), 3), np.nan))
 
 
 def _pick(p: Path, topic: str | None, conns: list, every: list) -> list:

@@ -18,13 +18,13 @@ epoch to epoch and the layout of each epoch's random draws are :mod:`virtualgps.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field, replace
-from typing import Protocol
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from virtualgps import geodesy
 from virtualgps.receiver import errors, signals
+from virtualgps.receiver.definition import Receiver
 from virtualgps.receiver.profiles import CorrelatedErrorParams, Profile
 from virtualgps.receiver.records import (
     MODE_2D,
@@ -35,7 +35,7 @@ from virtualgps.receiver.records import (
     QUALITY_NONE,
     Fixes,
 )
-from virtualgps.receiver.skyview import Sky, compute_sky, sky_ray_classes
+from virtualgps.receiver.skyview import Sky, compute_sky
 from virtualgps.receiver.state import (
     ReceiverRows,
     ReceiverState,
@@ -44,102 +44,6 @@ from virtualgps.receiver.state import (
     draw_uniforms,
     model_streams,
 )
-from virtualgps.sky.satnodes import SatNodes
-
-
-class Ephemeris(Protocol):
-    """Satellite positions: a TLE constellation or the paper's lookup table."""
-
-    prn: np.ndarray
-
-    def sat_ecef_m(self, t_unix_s: np.ndarray) -> np.ndarray:
-        """(n_t, n_sat, 3) ECEF metres at UTC times (n_t,); NaN where unknown."""
-        ...
-
-
-class Occluder(Protocol):
-    """Line-of-sight queries in the scene's local ENU frame."""
-
-    def blocked(
-        self, origins_enu_m: np.ndarray, dirs_enu: np.ndarray, cls: str = ...
-    ) -> np.ndarray:
-        """(m,) bool: does the ray from each origin along each direction hit the class?"""
-        ...
-
-
-@dataclass(frozen=True)
-class Georef:
-    """The geodetic point of the scene origin (the paper's "tag").
-
-    lat0_deg, lon0_deg : degrees, WGS-84; alt0_hae_m : metres above the ellipsoid
-    """
-
-    lat0_deg: float
-    lon0_deg: float
-    alt0_hae_m: float
-
-
-_FACADES: dict[int, tuple[object, signals.Facades]] = {}  # scene id -> (scene, its walls)
-_SAT_NODES: dict[int, tuple[object, SatNodes]] = {}  # ephemeris id -> (ephemeris, its nodes)
-
-
-@dataclass(frozen=True)
-class Receiver:
-    """Everything fixed during a run: profile, ephemeris, scene and georeference.
-
-    sky_shift_s : seconds subtracted from the epoch time before propagating satellites (the
-        sky-time policy: 0 for the true sky; a whole number of sky-repeat periods when the
-        simulated time lies far from the TLE epoch)
-    origin_ecef_m : (3,) ECEF of the georeference point (derived)
-    origin_rot : (3, 3) ECEF -> scene ENU rotation (derived; rows E, N, U)
-    facades : the scene's reflecting walls when the profile models ``nlos`` or ``multipath``
-        (derived)
-    sat_nodes : the ephemeris' positions interpolated between nodes, for an ephemeris that asks
-        for it (``node_interpolation``: SGP4's TLE sets); derived, shared by the receivers of
-        one ephemeris; None: its positions are used as they are
-    """
-
-    profile: Profile
-    ephemeris: Ephemeris
-    scene: Occluder | None
-    georef: Georef
-    sky_shift_s: float = 0.0
-    origin_ecef_m: np.ndarray = field(init=False, repr=False, compare=False)
-    origin_rot: np.ndarray = field(init=False, repr=False, compare=False)
-    facades: signals.Facades | None = field(init=False, repr=False, compare=False)
-    sat_nodes: SatNodes | None = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        g = self.georef
-        # Computed once: the daemon calls the core once per epoch, where numpy's per-call
-        # overhead on tiny arrays dominates.
-        object.__setattr__(
-            self, "origin_ecef_m", geodesy.geodetic_to_ecef(g.lat0_deg, g.lon0_deg, g.alt0_hae_m)
-        )
-        object.__setattr__(self, "origin_rot", geodesy.ecef_to_enu_matrix(g.lat0_deg, g.lon0_deg))
-        facades = None
-        faces = getattr(self.scene, "faces", None)
-        walls = self.profile.nlos.enabled or self.profile.multipath.enabled
-        if walls and faces is not None and len(faces):
-            from virtualgps.sky.scene import CLASS_OCCLUDER
-
-            facades = _FACADES.get(id(self.scene), (None, None))[1]
-            if facades is None:  # built once per scene (a profile change must not rebuild it)
-                sel = self.scene.face_class == CLASS_OCCLUDER
-                facades = signals.Facades(self.scene.vertices_enu_m, faces[sel],
-                                          self.scene.face_object[sel])
-                _FACADES[id(self.scene)] = (self.scene, facades)
-        object.__setattr__(self, "facades", facades)
-        nodes = None
-        if getattr(self.ephemeris, "node_interpolation", False):
-            nodes = _SAT_NODES.get(id(self.ephemeris), (None, None))[1]
-            if nodes is None:  # one node cache per ephemeris (a fleet's receivers share it)
-                nodes = SatNodes(self.ephemeris)
-                _SAT_NODES[id(self.ephemeris)] = (self.ephemeris, nodes)
-        object.__setattr__(self, "sat_nodes", nodes)
-        prepare = getattr(self.scene, "prepare", None)  # (a Scene; an Occluder may lack it)
-        if prepare is not None:
-            prepare(sky_ray_classes(self.profile))
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:

@@ -10,13 +10,15 @@ table, which overrides the profile's (e.g. ``[noise] max_noise_m = 8.0``).
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from virtualgps.exceptions import ConfigError, InputFileError, VirtualGPSError
+from virtualgps.receiver.nmea_format import NmeaFormat
+from virtualgps.sky.skymask import SKY_MASK_MAX_CELL, SkyMaskParams
+from virtualgps.tomlfile import read_toml, toml_key_line
 
 BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal")
 DEFAULT_PROFILE = "holux-m1000"
@@ -280,36 +282,6 @@ class FoliageParams:
     billboard_m: float = 4.0
 
 
-# Largest |cell index| a sky mask may hold (cells of 1 m reach 1000 km from the scene origin).
-SKY_MASK_MAX_CELL = 1_000_000
-
-
-@dataclass(frozen=True)
-class SkyMaskParams:
-    """``[sky_mask]``, the learned part of ``foliage``: attenuation by sky direction for
-    obstacles the scene lacks (trees, buildings or vehicles missing from the mesh).
-
-    The sky is cut into bins of ``el_bin_deg`` x ``az_bin_deg``; ``atten_db[r][c]`` is the
-    attenuation (dB, >= 0) of a satellite with ``r * el_bin_deg <= el < (r + 1) * el_bin_deg``
-    and ``c * az_bin_deg <= az < (c + 1) * az_bin_deg`` (azimuth from north, clockwise): rows
-    from the horizon up, each with 360 / az_bin_deg values; rows above the last given are clear.
-    A value >= ``block_db`` (TOML's ``inf`` too) blocks the satellite. With ``cell_m`` > 0,
-    ``cells`` holds grids for square cells of the scene's east/north plane, cell ``(i, j)`` =
-    ``(floor(east / cell_m), floor(north / cell_m))``, written ``"i,j"`` in TOML; a cell's grid
-    replaces ``atten_db`` while the antenna is in it. ``block_db`` = 30 dB: more than the margin
-    between a clear satellite's C/N0 and a receiver's tracking threshold (~25 dB with the
-    ``cn0_tracking`` defaults), so a bin that strong is a wall whatever the model.
-
-    atten_db : rows of floats; cells : ((i, j), rows) pairs in key order (from the TOML table)
-    """
-
-    enabled: bool = False
-    az_bin_deg: float = 10.0
-    el_bin_deg: float = 10.0
-    block_db: float = 30.0
-    atten_db: tuple[tuple[float, ...], ...] = ()
-    cell_m: float = 0.0
-    cells: tuple[tuple[tuple[int, int], tuple[tuple[float, ...], ...]], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -319,7 +291,7 @@ class Profile:
     rate_hz : epochs per second; baud : serial speed the output is paced to (8N1);
     pose_timeout_s : a pose older than this gives no-fix epochs;
     georef : "wgs84" (exact) or "flat_earth" (the paper's conversion);
-    nmea : the ``[nmea]`` table, read by :class:`virtualgps.device.nmea.NmeaFormat`;
+    nmea : the ``[nmea]`` table, read by :class:`virtualgps.receiver.nmea_format.NmeaFormat`;
     command_link : "mtk" (answer $PMTK commands written to the device) or "none" (ignore them);
     firmware : the body of the ``$PMTK705`` answer (release, build id, model) with ``mtk``.
     """
@@ -359,38 +331,6 @@ class SettingError(ConfigError):
         self.section, self.key = section, key
 
 
-def toml_key_line(text: str, section: str, key: str | None) -> int | None:
-    """1-based line of ``key`` in ``[section]`` of a TOML text (of the table header when ``key``
-    is None), or None. A plain scan, enough to point a user at a bad setting.
-
-    Parameters
-    ----------
-    text : the TOML text
-    section : table name ("" for the top level)
-    key : the key, or None for the table header
-
-    Returns
-    -------
-    line : int or None
-    """
-    current = ""
-    for i, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        header = re.match(r"\[\s*([^\]]+?)\s*\]", stripped)
-        if header:
-            current = header.group(1).strip('"')
-            if (key is None and current == section) or (section == "" and current == key):
-                return i  # the table itself ([section], or a top-level key that is a table)
-            continue
-        if (
-            key is not None
-            and current == section
-            and re.match(rf'"?{re.escape(key)}"?\s*[=.]', stripped)
-        ):
-            return i
-    return None
-
-
 _CHOICES = {
     ("", "georef"): ("wgs84", "flat_earth"),
     ("sky", "foliage"): ("block", "ignore"),
@@ -416,29 +356,6 @@ _TABLES = {
     "multipath": MultipathParams,
     "foliage": FoliageParams,
 }
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    """Read a TOML file, turning syntax errors into one line naming the file and line.
-
-    Parameters
-    ----------
-    path : the file
-
-    Returns
-    -------
-    data : the parsed table
-    """
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise InputFileError(path, "no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        # tomllib's message ends with "(at line L, column C)".
-        raise InputFileError(path, f"invalid TOML: {exc}") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot read: {exc.strerror}") from None
 
 
 def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -617,8 +534,6 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
         elif key == "nmea":
             if not isinstance(value, dict):
                 raise SettingError("", key, "[nmea] must be a table")
-            from virtualgps.device.nmea import NmeaFormat
-
             try:
                 NmeaFormat.from_dict(value)
             except ConfigError as exc:

@@ -16,33 +16,13 @@ import numpy as np
 
 from virtualgps import geodesy
 from virtualgps.receiver import signals
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.definition import sky_ray_classes
 from virtualgps.sky import skymask
 
 if TYPE_CHECKING:
-    from virtualgps.receiver.core import Receiver
+    from virtualgps.receiver.definition import Receiver
 
 
-def sky_ray_classes(profile: Profile) -> tuple[str, ...]:
-    """The scene classes :func:`compute_sky` casts rays against: the direct paths' blockers
-    first (foliage blocks as the paper has it unless the foliage model attenuates), then the
-    foliage (its attenuation) and the occluders (reflections off walls) where modelled.
-
-    Parameters
-    ----------
-    profile : the receiver's profile
-
-    Returns
-    -------
-    classes : query class names (``scene.QueryClass``), the direct paths' first
-    """
-    foliage_blocks = profile.sky.foliage == "block" and not profile.foliage.enabled
-    classes = ["solid" if foliage_blocks else "occluder"]
-    if profile.foliage.enabled:
-        classes.append("foliage")
-    if (profile.nlos.enabled or profile.multipath.enabled) and "occluder" not in classes:
-        classes.append("occluder")
-    return tuple(classes)
 
 
 @dataclass(frozen=True)

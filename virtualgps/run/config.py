@@ -1,4 +1,5 @@
-"""Run settings and their precedence, and assembling a :class:`~virtualgps.receiver.core.Receiver`.
+"""Run settings and their precedence, and assembling a
+:class:`~virtualgps.receiver.definition.Receiver`.
 
 Precedence, lowest first: built-in defaults < profile < config file (``--config``) < flags.
 A config file's top level may hold the run settings of :data:`virtualgps.receiver.profiles.RUN_KEYS`
@@ -19,10 +20,11 @@ import numpy as np
 from virtualgps.bundled import bundled_dir
 from virtualgps.exceptions import ConfigError, VirtualGPSError
 from virtualgps.geodesy import geoid_sep_m
-from virtualgps.receiver.core import Georef, Receiver
-from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile, read_toml
+from virtualgps.receiver.definition import Georef, Receiver
+from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile
 from virtualgps.sky import ephemeris as eph
 from virtualgps.sky.skytime import choose_tle_set
+from virtualgps.tomlfile import read_toml
 
 log = logging.getLogger(__name__)
 

@@ -27,7 +27,8 @@ import numpy as np
 from virtualgps.device import mtk, nmea
 from virtualgps.exceptions import PoseError
 from virtualgps.poses import pose
-from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import Profile
 from virtualgps.receiver.records import Fixes
 from virtualgps.receiver.skyview import compute_sky
@@ -661,11 +662,11 @@ def tick(
     """Simulate the epoch of receivers due together and render their NMEA (sent by
     :meth:`LiveReceiver.sent`).
 
-    Receivers that share a :class:`~virtualgps.receiver.core.Receiver` and an epoch time are one
-    batch: one :func:`compute_sky` for all their antennas (SGP4 once, every ray in one Embree
-    call), one :func:`simulate` with the receivers as rows (:class:`ReceiverRows`: each row
-    computed as that receiver alone would compute its one epoch), and their sentences
-    rendered in one pass per output format.
+    Receivers that share a :class:`~virtualgps.receiver.definition.Receiver` and an epoch time are
+    one batch: one :func:`compute_sky` for all their antennas (SGP4 once, every ray in one Embree
+    call), one :func:`simulate` with the receivers as rows (:class:`ReceiverRows`: each row computed
+    as that receiver alone would compute its one epoch), and their sentences rendered in one pass
+    per output format.
 
     Parameters
     ----------

@@ -16,7 +16,8 @@ import numpy as np
 
 from virtualgps.device import nmea
 from virtualgps.poses import pose
-from virtualgps.receiver.core import Georef, Receiver, simulate
+from virtualgps.receiver.core import simulate
+from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.records import Fixes
 from virtualgps.receiver.skyview import compute_sky
 from virtualgps.receiver.state import initial_state

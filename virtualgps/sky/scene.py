@@ -67,7 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from virtualgps.exceptions import InputFileError
 from virtualgps.geodesy import geoid_sep_m
-from virtualgps.receiver.profiles import toml_key_line
+from virtualgps.tomlfile import toml_key_line
 from virtualgps.usercache import user_cache_dir
 
 F64 = NDArray[np.float64]

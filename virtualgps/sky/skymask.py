@@ -1,18 +1,49 @@
 """Sky masks: attenuation by sky direction (and place) for obstacles the scene lacks.
 
-Owns the lookup of a profile's ``[sky_mask]`` table
-(:class:`virtualgps.receiver.profiles.SkyMaskParams`), the learned part of the ``foliage`` effect
-(DESIGN section 6): a grid of azimuth x elevation bins of attenuation in dB, optionally one grid per
-square cell of the scene's east/north plane. :func:`virtualgps.receiver.skyview.compute_sky` adds
-the attenuation to the foliage attenuation, and a bin at or above ``block_db`` blocks. Pure numpy,
-vectorised over any leading axes.
+Owns a profile's ``[sky_mask]`` table (:class:`SkyMaskParams`) and its lookup, the learned part of
+the ``foliage`` effect (DESIGN section 6): a grid of azimuth x elevation bins of attenuation in dB,
+optionally one grid per square cell of the scene's east/north plane.
+:func:`virtualgps.receiver.skyview.compute_sky` adds the attenuation to the foliage attenuation, and
+a bin at or above ``block_db`` blocks. Pure numpy, vectorised over any leading axes.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from virtualgps.receiver.profiles import SKY_MASK_MAX_CELL, SkyMaskParams
+# Largest |cell index| a sky mask may hold (cells of 1 m reach 1000 km from the scene origin).
+SKY_MASK_MAX_CELL = 1_000_000
+
+
+@dataclass(frozen=True)
+class SkyMaskParams:
+    """``[sky_mask]``, the learned part of ``foliage``: attenuation by sky direction for
+    obstacles the scene lacks (trees, buildings or vehicles missing from the mesh).
+
+    The sky is cut into bins of ``el_bin_deg`` x ``az_bin_deg``; ``atten_db[r][c]`` is the
+    attenuation (dB, >= 0) of a satellite with ``r * el_bin_deg <= el < (r + 1) * el_bin_deg``
+    and ``c * az_bin_deg <= az < (c + 1) * az_bin_deg`` (azimuth from north, clockwise): rows
+    from the horizon up, each with 360 / az_bin_deg values; rows above the last given are clear.
+    A value >= ``block_db`` (TOML's ``inf`` too) blocks the satellite. With ``cell_m`` > 0,
+    ``cells`` holds grids for square cells of the scene's east/north plane, cell ``(i, j)`` =
+    ``(floor(east / cell_m), floor(north / cell_m))``, written ``"i,j"`` in TOML; a cell's grid
+    replaces ``atten_db`` while the antenna is in it. ``block_db`` = 30 dB: more than the margin
+    between a clear satellite's C/N0 and a receiver's tracking threshold (~25 dB with the
+    ``cn0_tracking`` defaults), so a bin that strong is a wall whatever the model.
+
+    atten_db : rows of floats; cells : ((i, j), rows) pairs in key order (from the TOML table)
+    """
+
+    enabled: bool = False
+    az_bin_deg: float = 10.0
+    el_bin_deg: float = 10.0
+    block_db: float = 30.0
+    atten_db: tuple[tuple[float, ...], ...] = ()
+    cell_m: float = 0.0
+    cells: tuple[tuple[tuple[int, int], tuple[tuple[float, ...], ...]], ...] = ()
+
 
 # Antenna cell indices beyond the largest a profile may hold map to no cell (the default grid).
 _CELL_CLIP = SKY_MASK_MAX_CELL + 1

@@ -27,16 +27,13 @@ from virtualgps.device.nmea.sentence import (
 )
 from virtualgps.device.nmea.writer import (
     GSA_SLOTS,
-    GSV_MAX_SATS,
     MTK_PLACEHOLDER_ALT_MSL_M,
     MTK_PLACEHOLDER_GEOID_SEP_M,
     MTK_PLACEHOLDER_LAT_DEG,
-    NO_FIX_STYLES,
-    SENTENCE_TYPES,
-    NmeaFormat,
     epoch_sentences,
     render_batch,
 )
+from virtualgps.receiver.nmea_format import GSV_MAX_SATS, NO_FIX_STYLES, SENTENCE_TYPES, NmeaFormat
 
 __all__ = [
     "GSA_SLOTS",

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from virtualgps.exceptions import ConfigError
 from virtualgps.poses.pose import MAX_RECEIVER_ID
-from virtualgps.receiver.profiles import read_toml
+from virtualgps.tomlfile import read_toml
 
 ID_FIELD = "{id}"
 _KEYS = {"id", "profile", "seed", "link", "baud", "antenna_offset_m"}

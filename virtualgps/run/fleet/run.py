@@ -3,7 +3,7 @@ pose source, then run :func:`virtualgps.run.daemon.run_receivers`.
 
 One receiver and a fleet take the same path: a fleet of one is ``virtualgps run`` as it always
 was (device ``./virtualgps0``, seed ``--seed``). Receivers that share a profile share one
-:class:`~virtualgps.receiver.core.Receiver` (scene, walls, ephemeris), so they are simulated
+:class:`~virtualgps.receiver.definition.Receiver` (scene, walls, ephemeris), so they are simulated
 together.
 """
 
@@ -17,7 +17,8 @@ import numpy as np
 
 from virtualgps.device import nmea, transport
 from virtualgps.exceptions import ConfigError
-from virtualgps.poses import pose, posesource
+from virtualgps.poses import logs as pose_logs
+from virtualgps.poses import posesource
 from virtualgps.run import config, daemon
 from virtualgps.run.fleet.members import Member, fleet_members
 from virtualgps.run.fleet.ptyloop import PtyLoop
@@ -108,7 +109,7 @@ def build_fleet(
     spec = poses_spec
     ids = [m.receiver_id for m in members]
     is_log = spec != "demo" and not spec.startswith(("udp://", "tcp://")) and spec != "-"
-    tracks = pose.read_pose_logs_by_id(Path(spec), topic) if is_log else None
+    tracks = pose_logs.read_pose_logs_by_id(Path(spec), topic) if is_log else None
     if georef is None and tracks is not None:
         first = next(iter(tracks.values()))
         if first.frame != "geodetic":
