@@ -161,8 +161,11 @@ def test_an_interrupted_replay_says_how_far_it_got_and_leaves_whole_epochs(tmp_p
 
     poses = write_walk(tmp_path / "long.jsonl", n=20_000)  # 10,000 s: ~100,000 epochs at 10 Hz
     out = tmp_path / "o.nmea"
+    # A shell's background job starts with SIGINT ignored, and a child inherits that (Python
+    # then installs no KeyboardInterrupt handler): restore the default, as a terminal has it.
     proc = subprocess.Popen([sys.executable, "-m", "virtualgps", "replay", str(poses), "--rate",
-                             "10", "--out", str(out)], stderr=subprocess.PIPE, text=True)
+                             "10", "--out", str(out)], stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60.0
     while not (out.exists() and out.stat().st_size) and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -15,7 +15,7 @@ import pytest
 from virtualgps.device import nmea
 from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import load_profile
-from virtualgps.run import daemon
+from virtualgps.run import daemon, poseproviders
 from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve
 from virtualgps.sky.ephemeris import load_tle
 from virtualgps.sky.scene import load_scene
@@ -26,7 +26,7 @@ START = 1490712768.0  # 2017-03-28T14:52:48Z
 class FakeSource:
     """Pose messages handed out at chosen simulated times (a stand-in for UDP)."""
 
-    def __init__(self, clock: daemon.SimClock, schedule: list[tuple[float, bytes]]) -> None:
+    def __init__(self, clock: poseproviders.SimClock, schedule: list[tuple[float, bytes]]) -> None:
         self.clock, self.schedule = clock, sorted(schedule)
 
     def fileno_list(self) -> list[int]:
@@ -67,12 +67,12 @@ def receiver():
 
 def test_live_loop_fix_rules_and_epoch_times(receiver):
     cfg, rx = receiver
-    clock = daemon.SimClock(START)
+    clock = poseproviders.SimClock(START)
     t0 = clock.now_unix_s()
     good = json.dumps({"x": 0.0, "y": 0.0, "z": 1.5}).encode()  # t absent: arrival time
     schedule = [(t0 + 0.5, good), (t0 + 0.55, b"{not json"), (t0 + 0.6, b'{"x": 1}'),
                 (t0 + 0.7, good)]
-    provider = daemon.LiveProvider(FakeSource(clock, schedule), rx.georef, clock,
+    provider = poseproviders.LiveProvider(FakeSource(clock, schedule), rx.georef, clock,
                                    cfg.profile.pose_timeout_s)
     sink = Sink()
     fixes_seen: list[tuple[float, int]] = []
@@ -117,10 +117,10 @@ def test_the_live_loop_warns_when_its_line_cannot_carry_the_rate(receiver, monke
                                                                  baud, warned):
     cfg, rx = receiver  # 10 Hz
     monkeypatch.setattr(daemon, "_LINE_WARNED", set())
-    clock = daemon.SimClock(START)
+    clock = poseproviders.SimClock(START)
     good = json.dumps({"x": 0.0, "y": 0.0, "z": 1.5}).encode()
-    provider = daemon.LiveProvider(FakeSource(clock, [(clock.now_unix_s(), good)]), rx.georef,
-                                   clock, cfg.profile.pose_timeout_s)
+    provider = poseproviders.LiveProvider(FakeSource(clock, [(clock.now_unix_s(), good)]),
+                                          rx.georef, clock, cfg.profile.pose_timeout_s)
     sink = Sink()
     sink.baud = baud
     with caplog.at_level("WARNING", logger="virtualgps.run.daemon"):
@@ -138,14 +138,14 @@ def test_a_fix_interval_the_new_baud_cannot_carry_is_refused(receiver):
     from virtualgps.device import mtk
 
     cfg, rx = receiver
-    clock = daemon.SimClock(START)
+    clock = poseproviders.SimClock(START)
     sink = Sink()
     client = [nmea.format_sentence(c).encode() for c in ("PMTK251,9600", "PMTK220,100")]
     sink.read_available = lambda: client.pop(0) if client else b""
     member = daemon.LiveReceiver(rx, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea), clock,
                                  np.random.default_rng(0))
-    walk = daemon.LoopProvider(daemon.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5]]), 1.4),
-                               START, 2.0)
+    lap = poseproviders.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5]]), 1.4)
+    walk = poseproviders.LoopProvider(lap, START, 2.0)
     for _ in range(3):
         (group, fixes, data), = daemon.tick([member], walk)
         member.sent(data[0], bool(fixes.quality[0] > 0))
@@ -157,8 +157,8 @@ def test_a_fix_interval_the_new_baud_cannot_carry_is_refused(receiver):
 
 def test_demo_lap_walks_the_loop_at_the_set_speed():
     scene = load_scene(BUNDLED_SCENES_DIR / "magdeburg-campus")
-    lap = daemon.demo_lap(scene.demo_waypoints_enu_m, 1.4)
-    walk = daemon.LoopProvider(lap, START, 2.0)
+    lap = poseproviders.demo_lap(scene.demo_waypoints_enu_m, 1.4)
+    walk = poseproviders.LoopProvider(lap, START, 2.0)
     t = START + np.arange(0.0, 3 * walk.lap_s, 7.3)
     pos, vel, ok = walk.pose_at(t)
     assert ok.all()

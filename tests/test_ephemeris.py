@@ -26,15 +26,17 @@ from virtualgps.sky.ephemeris import (
     BUNDLED_EPHEMERIS_DIR,
     GPS_SKY_REPEAT_S,
     Constellation,
-    LookupTable,
     build_lookup_table,
     default_tle_path,
-    is_lookup_table,
     load_tle,
-    read_lookup_table,
     read_prn_table,
     sidereal_shift_s,
     tle_checksum,
+)
+from virtualgps.sky.lookup import (
+    LookupTable,
+    is_lookup_table,
+    read_lookup_table,
     write_lookup_table,
 )
 

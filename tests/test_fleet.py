@@ -22,7 +22,7 @@ import pytest
 from virtualgps.device import nmea
 from virtualgps.exceptions import ConfigError
 from virtualgps.poses import posesource
-from virtualgps.run import daemon
+from virtualgps.run import daemon, poseproviders
 from virtualgps.run.config import BUNDLED_SCENES_DIR, load_scene_for, make_receiver, resolve
 from virtualgps.run.fleet.members import fleet_members
 from virtualgps.sky.ephemeris import load_tle
@@ -96,14 +96,15 @@ class Sink:
         return b""
 
 
-def walk(rid: int) -> daemon.TrackProvider:
+def walk(rid: int) -> poseproviders.TrackProvider:
     """A different straight walk through the campus for each receiver, from START."""
     from virtualgps.poses.pose import PoseTrack
 
     t = START + np.arange(0.0, 60.0, 0.5)
     start = np.array([[-40.0 + 25.0 * rid, -30.0 + 10.0 * rid, 1.5]])
     xyz = start + np.outer(t - START, [1.2, 0.9 - 0.4 * rid, 0.0])
-    return daemon.TrackProvider(PoseTrack(t, "enu", xyz, np.full_like(xyz, np.nan)), START, 2.0)
+    track = PoseTrack(t, "enu", xyz, np.full_like(xyz, np.nan))
+    return poseproviders.TrackProvider(track, START, 2.0)
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +115,7 @@ def campus():
     return cfg, scene, georef, eph
 
 
-class FlatOut(daemon.SimClock):
+class FlatOut(poseproviders.SimClock):
     """A clock for which every epoch is due at once: the loop runs flat out, never skipping."""
 
     def now_unix_s(self) -> float:
@@ -140,7 +141,7 @@ def run_members(campus, specs, n_epochs):
         members.append(daemon.LiveReceiver(
             rx, Sink(), nmea.NmeaFormat.from_dict(rx.profile.nmea), clock,
             np.random.default_rng(seed), receiver_id=rid, t_first_unix_s=START))
-    provider = daemon.ReceiverPoses({rid: walk(rid) for rid, _, _ in specs})
+    provider = poseproviders.ReceiverPoses({rid: walk(rid) for rid, _, _ in specs})
     daemon.run_receivers(members, provider, clock, threading.Event(), max_epochs=n_epochs)
     return {m.receiver_id: bytes(m.device.data) for m in members}
 
@@ -215,7 +216,7 @@ def test_a_restart_of_one_receiver_leaves_the_others_as_they_were(campus):
             np.random.default_rng(30 + rid), receiver_id=rid, t_first_unix_s=START)
             for rid in ids]
 
-    provider = daemon.ReceiverPoses({rid: walk(rid) for rid in range(3)})
+    provider = poseproviders.ReceiverPoses({rid: walk(rid) for rid in range(3)})
     fleet = members([0, 1, 2])
     daemon.run_receivers(fleet, provider, clock, threading.Event(), max_epochs=300)
     for rid in (0, 2):
@@ -236,8 +237,8 @@ def test_flood_of_bad_and_unknown_id_messages_is_counted_and_poses_still_arrive(
     cfg, _, georef, _ = campus
     src = posesource.open_pose_source("udp://127.0.0.1:0")
     port = src.address[1]
-    clock = daemon.SimClock(START)
-    provider = daemon.LiveProvider(src, georef, clock, 2.0, receiver_ids=[0, 1, 2])
+    clock = poseproviders.SimClock(START)
+    provider = poseproviders.LiveProvider(src, georef, clock, 2.0, receiver_ids=[0, 1, 2])
     bad = [b"{not json", b'{"x": 1}', b'{"id": 9, "x": 0, "y": 0, "z": 1}',
            b'{"id": "a", "x": 0, "y": 0, "z": 1}', b"\xff\xfe", b'{"id": -1, "x": 0}']
     try:
@@ -285,7 +286,7 @@ def test_live_poses_of_many_receivers_at_once_are_each_receivers_own(campus):
         def close(self):
             pass
 
-    clock = daemon.SimClock(START)
+    clock = poseproviders.SimClock(START)
     off = clock.offset_s
     msgs = []
     for rid in range(6):
@@ -295,7 +296,7 @@ def test_live_poses_of_many_receivers_at_once_are_each_receivers_own(campus):
             if rid == 2:
                 m.update(vx=0.4, vy=-0.1, vz=0.0)
             msgs.append((json.dumps(m).encode(), 0.0))
-    lp = daemon.LiveProvider(Src(msgs), georef, clock, 1.0, receiver_ids=range(8))
+    lp = poseproviders.LiveProvider(Src(msgs), georef, clock, 1.0, receiver_ids=range(8))
     lp.pump()
     ids = list(range(8))  # (6 and 7 never sent a pose)
     n_valid = []

@@ -9,6 +9,7 @@ holds whatever runs first.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -166,3 +167,23 @@ def test_the_contract_catches_an_upward_import_and_a_circle(toy_package):
     bad = upward_imports(graph)
     assert bad == ["virtualgps.sky.scene -> virtualgps.receiver.core (sky imports receiver)"]
     assert cycles(graph) == [["virtualgps.receiver.core", "virtualgps.receiver.state"]]
+
+
+# Import name of each runtime dependency (the distribution's name where they differ).
+IMPORT_NAMES = {"pyserial": "serial"}
+
+
+def test_every_runtime_dependency_is_imported_by_the_package():
+    import tomllib
+
+    deps = tomllib.loads((PACKAGE_DIR.parent / "pyproject.toml").read_text())["project"]
+    names = {re.split(r"[<>=!~\[ ;]", d, maxsplit=1)[0].lower() for d in deps["dependencies"]}
+    imported: set[str] = set()
+    for path in PACKAGE_DIR.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                imported.add(node.module.split(".")[0])
+    unused = sorted(n for n in names if IMPORT_NAMES.get(n, n) not in imported)
+    assert unused == [], f"runtime dependencies nothing in virtualgps/ imports: {unused}"

@@ -13,7 +13,7 @@ import pytest
 from virtualgps.device import mtk, nmea
 from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import load_profile
-from virtualgps.run import daemon
+from virtualgps.run import daemon, poseproviders
 from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve
 from virtualgps.sky.ephemeris import load_tle
 
@@ -234,7 +234,7 @@ def test_junk_between_commands_changes_nothing():
 class ScriptedDevice:
     """A device whose client writes scripted bytes at chosen simulated times; records output."""
 
-    def __init__(self, clock: daemon.SimClock, script: list[tuple[float, bytes]]) -> None:
+    def __init__(self, clock: poseproviders.SimClock, script: list[tuple[float, bytes]]) -> None:
         self.clock, self.script = clock, sorted(script)
         self.writes: list[tuple[float, bytes]] = []
         self.bauds: list[int] = []
@@ -273,11 +273,11 @@ def mtk_receiver():
 
 
 def run_scripted(rx, script_rel, n_epochs):
-    clock = daemon.SimClock(START)
+    clock = poseproviders.SimClock(START)
     t0 = clock.now_unix_s()
     dev = ScriptedDevice(clock, [(t0 + dt, data) for dt, data in script_rel])
-    lap = daemon.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5]], float), 1.4)
-    provider = daemon.LoopProvider(lap, t0, 2.0)
+    lap = poseproviders.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5]], float), 1.4)
+    provider = poseproviders.LoopProvider(lap, t0, 2.0)
     epochs: list[tuple[float, int]] = []
     stats = daemon.run_daemon(
         rx,
@@ -362,15 +362,16 @@ def test_without_link_client_bytes_are_read_and_dropped(mtk_receiver):
 
 
 def test_devices_change_baud_at_run_time():
-    from virtualgps.device import transport
+    from virtualgps.device.pty import PtyDevice
+    from virtualgps.device.serialport import SerialDevice
 
-    with transport.PtyDevice(None, baud=38400) as pty:
+    with PtyDevice(None, baud=38400) as pty:
         pty.set_baud(115200)
         assert pty.baud == 115200 and pty.termios_baud() == 115200
         assert pty.max_backlog_bytes == int(2.0 * 11520)
         pty.set_baud(14400)  # not a termios rate: pacing only
         assert pty.baud == 14400 and pty.termios_baud() == 115200
-    with transport.SerialDevice("loop://", 38400) as port:
+    with SerialDevice("loop://", 38400) as port:
         port.write_epoch(mtk.ack(251, 3).encode())  # leaves at the old rate, then the switch
         port.set_baud(9600)
         deadline = time.monotonic() + 2.0

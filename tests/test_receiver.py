@@ -9,9 +9,10 @@ import pytest
 
 from virtualgps import geodesy
 from virtualgps.device import nmea
-from virtualgps.receiver.core import dop, select_used, simulate, usarsim_sigma_m
+from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import load_profile
+from virtualgps.receiver.solution import dop, select_used, usarsim_sigma_m
 from virtualgps.receiver.state import ReceiverState
 
 GEOREF = Georef(52.14, 11.64, 100.0)
@@ -616,7 +617,7 @@ def test_multipath_moves_only_line_of_sight_ranges_near_a_wall(wall_dist_m):
     """The fix error is the WLS solution of sigma(el, d) z on the unblocked satellites (the
     first epoch draws the stationary process: x = z), and nothing beyond max_dist_m."""
     from virtualgps.receiver import errors
-    from virtualgps.receiver.core import error_processes, position_errors
+    from virtualgps.receiver.solution import error_processes, position_errors
     from virtualgps.receiver.state import draw_layout
 
     mp = {"enabled": True, "sigma_m": 4.0, "el0_deg": 15.0, "max_dist_m": 30.0}

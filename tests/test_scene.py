@@ -174,16 +174,16 @@ def test_parsed_meshes_are_cached_by_content(tmp_path, monkeypatch):
     """Issue #9: the parsed mesh is kept in the user cache, keyed by the file's content; a
     cached load gives the same arrays, an edited file is parsed afresh, a broken cache file is
     rebuilt."""
-    from virtualgps.sky import scene as sc
+    from virtualgps.sky import meshfiles
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     obj = tmp_path / "m.obj"
     obj.write_text("o Wall1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n"
                    "o Tree2\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf 5 6 7\n")
-    first = sc._load_mesh(obj)
+    first = meshfiles.load_mesh(obj)
     (cached,) = (tmp_path / "cache" / "virtualgps" / "mesh").glob("*.npz")
-    monkeypatch.setattr(sc, "_read_obj", lambda p: pytest.fail("parsed again"))
-    again = sc._load_mesh(obj)
+    monkeypatch.setattr(meshfiles, "_read_obj", lambda p: pytest.fail("parsed again"))
+    again = meshfiles.load_mesh(obj)
     for a, b in zip(first[:3], again[:3], strict=True):
         np.testing.assert_array_equal(a, b)
         assert a.dtype == b.dtype
@@ -191,10 +191,10 @@ def test_parsed_meshes_are_cached_by_content(tmp_path, monkeypatch):
     monkeypatch.undo()
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     obj.write_text(obj.read_text().replace("v 1 1 0", "v 2 2 0"))  # edited: a new key
-    assert sc._load_mesh(obj)[0][3, 0] == 2.0
+    assert meshfiles.load_mesh(obj)[0][3, 0] == 2.0
     cached.write_bytes(b"not a cache")
     obj.write_text(obj.read_text().replace("v 2 2 0", "v 1 1 0"))
-    np.testing.assert_array_equal(sc._load_mesh(obj)[0], first[0])
+    np.testing.assert_array_equal(meshfiles.load_mesh(obj)[0], first[0])
 
 
 def test_glb_and_stl_take_object_names_from_the_scene_graph(tmp_path, wall_scene):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.test_receiver import GEOREF, FixedSky, WallOnAzimuth
-from virtualgps.receiver import signals
+from virtualgps.receiver import signals, walls
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Receiver
 from virtualgps.receiver.profiles import load_profile
@@ -164,7 +164,7 @@ def _facades(scene):
     from virtualgps.sky.scene import CLASS_OCCLUDER
 
     sel = scene.face_class == CLASS_OCCLUDER
-    return signals.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
+    return walls.Facades(scene.vertices_enu_m, scene.faces[sel], scene.face_object[sel])
 
 
 @pytest.fixture(scope="module")
@@ -180,19 +180,19 @@ def test_nlos_excess_path_equals_the_image_method(two_walls):
     el = 30.0
     u = geodesy.azel_to_enu_unit(180.0, el)[None, :]
     assert two_walls.blocked(antenna, u)[0]  # the direct path hits wall A
-    found, excess = signals.reflections(two_walls, facades, antenna, u, 50.0)
+    found, excess = walls.reflections(two_walls, facades, antenna, u, 50.0)
     # Image antenna 2 d behind wall B's face (d = 20 - 10 = 10 m): excess 2 d cos(el).
     assert found[0]
     assert excess[0] == pytest.approx(2 * 10.0 * np.cos(np.radians(el)), abs=0.01)
     # A satellite with its reflection point above wall B (too low a wall) or coming in
     # from the north (behind the reflector) has no such path.
     u_north = geodesy.azel_to_enu_unit(0.0, el)[None, :]
-    found_n, _ = signals.reflections(two_walls, facades, antenna, u_north, 50.0)
+    found_n, _ = walls.reflections(two_walls, facades, antenna, u_north, 50.0)
     assert not found_n[0]
     high = geodesy.azel_to_enu_unit(180.0, 75.0)[None, :]  # reflection point 38 m up: off B
-    assert not signals.reflections(two_walls, facades, antenna, high, 50.0)[0][0]
+    assert not walls.reflections(two_walls, facades, antenna, high, 50.0)[0][0]
     # Walls further than max_dist_m do not reflect.
-    assert not signals.reflections(two_walls, facades, antenna, u, 5.0)[0][0]
+    assert not walls.reflections(two_walls, facades, antenna, u, 5.0)[0][0]
 
 
 def test_nlos_in_the_receiver_biases_the_range_and_weakens_the_signal(two_walls):
@@ -260,8 +260,8 @@ def test_scattering_off_a_wall_without_a_specular_point(narrow_reflector):
     a = np.array([3.0, 10.0, 1.5])
     u = geodesy.azel_to_enu_unit(160.0, 30.0)
     assert narrow_reflector.blocked(a[None], u[None])[0]
-    assert not signals.reflections(narrow_reflector, facades, a[None], u[None], 50.0)[0][0]
-    found, excess, lobe = signals.scattered_paths(narrow_reflector, facades, a[None], u[None],
+    assert not walls.reflections(narrow_reflector, facades, a[None], u[None], 50.0)[0][0]
+    found, excess, lobe = walls.scattered_paths(narrow_reflector, facades, a[None], u[None],
                                                   50.0, 4.0, 30.0)
     assert found[0]
     # The specular point (east 6.64, up 7.64) clamped 0.1 m inside B's edge, or the point
@@ -274,18 +274,18 @@ def test_scattering_off_a_wall_without_a_specular_point(narrow_reflector):
     assert lobe[0] == pytest.approx(best[0], abs=1e-6) and 0 < lobe[0] < 3
     assert excess[0] == pytest.approx(best[1], abs=1e-6)
     # Loss grows with alpha_R (a narrower lobe) and a cap below it drops the path.
-    narrow = signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 8.0,
+    narrow = walls.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 8.0,
                                      30.0)[2][0]
     assert narrow == pytest.approx(2 * lobe[0], rel=1e-9)
-    assert not signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 4.0,
+    assert not walls.scattered_paths(narrow_reflector, facades, a[None], u[None], 50.0, 4.0,
                                        0.5 * lobe[0])[0][0]
     # No wall within max_dist_m: nothing.
-    assert not signals.scattered_paths(narrow_reflector, facades, a[None], u[None], 5.0, 4.0,
+    assert not walls.scattered_paths(narrow_reflector, facades, a[None], u[None], 5.0, 4.0,
                                        30.0)[0][0]
     # A satellite in the north lights B's far side, which the antenna can't see, but A's north
     # face, which mirrors it with no lobe loss: excess 2 d (u . n), d = 9.5 m.
     u_n = geodesy.azel_to_enu_unit(20.0, 30.0)
-    f_n, ex_n, lobe_n = signals.scattered_paths(narrow_reflector, facades, a[None], u_n[None],
+    f_n, ex_n, lobe_n = walls.scattered_paths(narrow_reflector, facades, a[None], u_n[None],
                                                 50.0, 4.0, 30.0)
     assert f_n[0] and lobe_n[0] == pytest.approx(0.0, abs=1e-9)
     assert ex_n[0] == pytest.approx(2 * 9.5 * u_n[1], abs=1e-6)
@@ -297,9 +297,9 @@ def test_scattering_at_the_specular_point_is_the_reflection(two_walls):
     facades = _facades(two_walls)
     a = np.array([[3.0, 10.0, 1.5]])
     u = geodesy.azel_to_enu_unit(180.0, 30.0)[None, :]
-    found, excess, lobe = signals.scattered_paths(two_walls, facades, a, u, 50.0, 4.0, 30.0)
+    found, excess, lobe = walls.scattered_paths(two_walls, facades, a, u, 50.0, 4.0, 30.0)
     assert found[0] and lobe[0] == pytest.approx(0.0, abs=1e-9)
-    assert excess[0] == pytest.approx(signals.reflections(two_walls, facades, a, u, 50.0)[1][0],
+    assert excess[0] == pytest.approx(walls.reflections(two_walls, facades, a, u, 50.0)[1][0],
                                       abs=1e-6)
 
 
@@ -324,7 +324,7 @@ def test_scattering_in_the_receiver_adds_its_lobe_loss(narrow_reflector):
     assert plain.blocked[0, 0] and not plain.nlos[0, 0]  # no specular path
     assert sky_s.nlos[0, 0] and not sky_s.nlos[0, 1]
     u = sky_s.los_enu[0, 0] @ np.eye(3)
-    _, _, lobe = signals.scattered_paths(narrow_reflector, _facades(narrow_reflector), ant,
+    _, _, lobe = walls.scattered_paths(narrow_reflector, _facades(narrow_reflector), ant,
                                          u[None], 30.0, 4.0, 10.0)
     assert sky_s.nlos_loss_db[0, 0] == pytest.approx(7.0 + lobe[0], abs=1e-3)
     direct = 45.0 - 10.0 * (1 - np.sin(np.radians(30.0)))
@@ -421,7 +421,7 @@ def _random_walls(n_walls, half_width_m, length_m, seed):
     k = np.arange(n_walls)
     faces = np.concatenate([np.c_[k, k + n_walls, k + 2 * n_walls],
                             np.c_[k, k + 2 * n_walls, k + 3 * n_walls]])
-    return signals.Facades(verts, faces, np.concatenate([k, k]))
+    return walls.Facades(verts, faces, np.concatenate([k, k]))
 
 
 # A town (walls 2-20 m long over 200 m) and a dense thicket of short walls, where the nearest
@@ -457,8 +457,8 @@ def test_paths_at_equal_loss_up_to_round_off_keep_the_shortest():
     query = np.array([0, 0, 0, 1])
     excess_m = np.array([40.0, 6.0, 1.0, 9.0])
     loss_db = np.array([1e-10, 3e-10, 2.0, 0.5])
-    best = signals.least_loss_then_shortest(query, excess_m, loss_db)
+    best = walls.least_loss_then_shortest(query, excess_m, loss_db)
     np.testing.assert_array_equal(best, [1, 3])
     # Losses that really differ still decide before the length does.
-    assert signals.least_loss_then_shortest(query[:3], excess_m[:3],
+    assert walls.least_loss_then_shortest(query[:3], excess_m[:3],
                                             np.array([0.3, 0.4, 0.2])).tolist() == [2]

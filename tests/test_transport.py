@@ -15,7 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from virtualgps.device.transport import FileSink, PtyDevice, SerialDevice
+from virtualgps.device.output import FileSink
+from virtualgps.device.pty import PtyDevice
+from virtualgps.device.serialport import SerialDevice
 from virtualgps.exceptions import ConfigError, VirtualGPSError
 
 SENTENCE = re.compile(rb"\$EP,(\d{6}),x*\r\n")

@@ -53,7 +53,7 @@ from virtualgps.poses import logs as pose_logs
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.state import ReceiverState
 from virtualgps.run import config, replay
-from virtualgps.run.daemon import LoopProvider, demo_lap
+from virtualgps.run.poseproviders import LoopProvider, demo_lap
 
 START_UNIX_S = 1490712768.0  # 2017-03-28T14:52:48Z, the day of the Magdeburg waypoint logs
 

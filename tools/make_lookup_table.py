@@ -5,7 +5,7 @@ Usage: python tools/make_lookup_table.py TLE --start ISO8601 --duration-s S --st
 Example: python tools/make_lookup_table.py ephemeris/gps-ops-2020-05-14T22Z.tle
          --start 2020-05-14T22:00:00Z --duration-s 3600 --step-s 60 --out mtv.sat
 
-The format is documented in virtualgps.sky.ephemeris.write_lookup_table; virtualgps reads it with
+The format is documented in virtualgps.sky.lookup.write_lookup_table; virtualgps reads it with
 read_lookup_table and interpolates between rows (cubic Hermite, ~4 mm at 60 s steps).
 """
 
@@ -17,7 +17,8 @@ import sys
 from pathlib import Path
 
 from virtualgps.exceptions import VirtualGPSError
-from virtualgps.sky.ephemeris import build_lookup_table, load_tle, write_lookup_table
+from virtualgps.sky.ephemeris import build_lookup_table, load_tle
+from virtualgps.sky.lookup import write_lookup_table
 
 
 def parse_iso_utc(text: str) -> float:

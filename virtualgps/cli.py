@@ -592,7 +592,7 @@ TRIPLE_OPTIONS = ("--lla", "--at", "--origin")
 NEGATIVE = re.compile(r"-\.?\d")
 
 
-def _join_triples(argv: list[str]) -> list[str]:
+def join_triples(argv: list[str]) -> list[str]:
     """``--lla -33.9,151.2,50`` as ``--lla=-33.9,151.2,50``, so negative values parse as typed."""
     out: list[str] = []
     i = 0
@@ -608,7 +608,7 @@ def _join_triples(argv: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``virtualgps`` command; returns the exit code."""
-    args = build_parser().parse_args(_join_triples(sys.argv[1:] if argv is None else list(argv)))
+    args = build_parser().parse_args(join_triples(sys.argv[1:] if argv is None else list(argv)))
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
         format="virtualgps: %(message)s",

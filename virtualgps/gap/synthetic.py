@@ -199,7 +199,7 @@ def _walk_in_scene(scene, rng: np.random.Generator, t: np.ndarray) -> np.ndarray
 def _static_in_scene(scene, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, 3) ENU: a random point near the demo walk 3-10 m from a wall (where buildings block
     and reflect), 1.5 m above the ground."""
-    from virtualgps.receiver.signals import Facades
+    from virtualgps.receiver.walls import Facades
     from virtualgps.sky.scene import CLASS_OCCLUDER
 
     wp = np.asarray(scene.demo_waypoints_enu_m, dtype=float)

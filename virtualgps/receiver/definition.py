@@ -11,7 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from virtualgps import geodesy
-from virtualgps.receiver import signals
+from virtualgps.receiver import walls
 from virtualgps.receiver.profiles import Profile
 from virtualgps.sky.satnodes import SatNodes
 
@@ -48,7 +48,7 @@ class Georef:
     alt0_hae_m: float
 
 
-_FACADES: dict[int, tuple[object, signals.Facades]] = {}  # scene id -> (scene, its walls)
+_FACADES: dict[int, tuple[object, walls.Facades]] = {}  # scene id -> (scene, its walls)
 
 
 _SAT_NODES: dict[int, tuple[object, SatNodes]] = {}  # ephemeris id -> (ephemeris, its nodes)
@@ -77,7 +77,7 @@ class Receiver:
     sky_shift_s: float = 0.0
     origin_ecef_m: np.ndarray = field(init=False, repr=False, compare=False)
     origin_rot: np.ndarray = field(init=False, repr=False, compare=False)
-    facades: signals.Facades | None = field(init=False, repr=False, compare=False)
+    facades: walls.Facades | None = field(init=False, repr=False, compare=False)
     sat_nodes: SatNodes | None = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -90,14 +90,14 @@ class Receiver:
         object.__setattr__(self, "origin_rot", geodesy.ecef_to_enu_matrix(g.lat0_deg, g.lon0_deg))
         facades = None
         faces = getattr(self.scene, "faces", None)
-        walls = self.profile.nlos.enabled or self.profile.multipath.enabled
-        if walls and faces is not None and len(faces):
+        reflects = self.profile.nlos.enabled or self.profile.multipath.enabled
+        if reflects and faces is not None and len(faces):
             from virtualgps.sky.scene import CLASS_OCCLUDER
 
             facades = _FACADES.get(id(self.scene), (None, None))[1]
             if facades is None:  # built once per scene (a profile change must not rebuild it)
                 sel = self.scene.face_class == CLASS_OCCLUDER
-                facades = signals.Facades(self.scene.vertices_enu_m, faces[sel],
+                facades = walls.Facades(self.scene.vertices_enu_m, faces[sel],
                                           self.scene.face_object[sel])
                 _FACADES[id(self.scene)] = (self.scene, facades)
         object.__setattr__(self, "facades", facades)

@@ -419,9 +419,9 @@ def wls_fix(
     n_states : 4 (east, north, up, clock) or 3 (east, north, clock: a 2D fix)
     held_height : with n_states 4, the held height of a 2D fix counts as one more measurement,
         a row [0, 0, 1, 0] weighted as the mean of the used ranges' weights (as in
-        :func:`virtualgps.receiver.core.dop`; its error is 0 here): 3 satellites then determine the
-        states, and the sigmas are a 2D fix's own (what GST reports); with ``error_sigma_m``
-        its variance is the used ranges' mean error-to-weight variance ratio over its weight
+        :func:`virtualgps.receiver.solution.dop`; its error is 0 here): 3 satellites then determine
+        the states, and the sigmas are a 2D fix's own (what GST reports); with ``error_sigma_m`` its
+        variance is the used ranges' mean error-to-weight variance ratio over its weight
     error_sigma_m : (..., n_sat) float, metres, the range errors' standard deviations for the
         covariance (None: ``sigma_m``)
 

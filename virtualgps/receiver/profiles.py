@@ -224,7 +224,7 @@ class NlosParams:
     With ``scattering``, blocked satellites are received off rough walls instead: scattered in
     a lobe around the specular direction (a specular point on the wall is its centre), weaker
     by -10 ``scattering_alpha`` log10((1 + cos psi) / 2) dB more (Degli-Esposti et al. 2007's
-    directive model; see :func:`virtualgps.receiver.signals.scattered_paths`, which tries the walls
+    directive model; see :func:`virtualgps.receiver.walls.scattered_paths`, which tries the walls
     nearest the antenna); paths losing more than ``scattering_max_loss_db`` are ignored.
     Specular reflection alone finds a path for ~12 % of the building-crossing satellite-epochs
     at the Magdeburg waypoints, where the phone tracked 57 %; with scattering ~60 % have one."""

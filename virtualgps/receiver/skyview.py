@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from virtualgps import geodesy
-from virtualgps.receiver import signals
+from virtualgps.receiver import signals, walls
 from virtualgps.receiver.definition import sky_ray_classes
 from virtualgps.sky import skymask
 
@@ -160,12 +160,12 @@ def compute_sky(rx: Receiver, t_unix_s: np.ndarray, antenna_enu_m: np.ndarray) -
         origins = ant[idx[:-1]]
         nl = rx.profile.nlos
         if nl.scattering:  # (a specular point on a wall is the lobe's centre: loss 0)
-            found, ex, lobe = signals.scattered_paths(
+            found, ex, lobe = walls.scattered_paths(
                 rx.scene, rx.facades, origins, dirs, nl.max_dist_m, nl.scattering_alpha,
                 nl.scattering_max_loss_db)
             loss = np.where(found, nl.reflection_loss_db + lobe, 0.0)
         else:
-            found, ex = signals.reflections(rx.scene, rx.facades, origins, dirs, nl.max_dist_m)
+            found, ex = walls.reflections(rx.scene, rx.facades, origins, dirs, nl.max_dist_m)
             loss = np.where(found, nl.reflection_loss_db, 0.0)
         nlos[idx] = found
         excess[idx] = np.where(found, ex, 0.0)

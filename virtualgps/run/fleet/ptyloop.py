@@ -1,8 +1,8 @@
 """Many pseudo-terminals served from one thread: an epoll loop over their writers.
 
 A fleet of a thousand receivers cannot afford a writer thread per device (a thread's stack, and
-a context switch per slice of output). :class:`PtyLoop` drives :class:`~virtualgps.device.transport.
-PtyDevice` writers built with ``threaded=False``: each device's :meth:`~virtualgps.device.transport.
+a context switch per slice of output). :class:`PtyLoop` drives :class:`~virtualgps.device.pty.
+PtyDevice` writers built with ``threaded=False``: each device's :meth:`~virtualgps.device.pty.
 PtyDevice.step` runs when its next slice is due (a heap of wake times), when a new epoch is
 queued for it, or when its master reports client bytes or a hang-up (epoll, level-triggered,
 watched only while a reader is attached). One stalled reader only ever delays its own device:
@@ -22,7 +22,7 @@ import logging
 import select
 import time
 
-from virtualgps.device.transport import PtyDevice
+from virtualgps.device.pty import PtyDevice
 
 log = logging.getLogger(__name__)
 

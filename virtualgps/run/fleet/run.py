@@ -15,11 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from virtualgps.device import nmea, transport
+from virtualgps.device import nmea
+from virtualgps.device.pty import PtyDevice
+from virtualgps.device.serialport import SerialDevice
 from virtualgps.exceptions import ConfigError
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import posesource
-from virtualgps.run import config, daemon
+from virtualgps.run import config, daemon, poseproviders
 from virtualgps.run.fleet.members import Member, fleet_members
 from virtualgps.run.fleet.ptyloop import PtyLoop
 
@@ -45,10 +47,10 @@ class Fleet:
     """
 
     receivers: list[daemon.LiveReceiver]
-    provider: daemon.PoseProvider
+    provider: poseproviders.PoseProvider
     waiter: PtyLoop | None
     devices: list
-    clock: daemon.SimClock
+    clock: poseproviders.SimClock
     tle_path: str
     links: list[str | None]
 
@@ -100,7 +102,7 @@ def build_fleet(
     scene, georef, scene_tle = config.load_scene_for(cfg)
     t_start = cfg.start_time_unix_s
     ephemeris, tle_path = config.load_ephemeris(
-        cfg, scene_tle, daemon.SimClock(t_start).now_unix_s())
+        cfg, scene_tle, poseproviders.SimClock(t_start).now_unix_s())
     prof = cfg.profile
     log.info("profile %s (%s), scene %s, seed %d, rate %g Hz, baud %d, %d receiver%s",
              prof.name, prof.source, cfg.scene or config.DEFAULT_SCENE, cfg.seed,
@@ -131,7 +133,7 @@ def build_fleet(
             cfgs[key] = cfg if key == (None, None) else config.resolve(
                 {**flags, "profile": m.profile or flags.get("profile"),
                  "baud": m.baud or flags.get("baud")})
-    t_guess = daemon.SimClock(t_start).now_unix_s()  # (for the sky-time policy)
+    t_guess = poseproviders.SimClock(t_start).now_unix_s()  # (for the sky-time policy)
     rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t_guess)
            for key, c in cfgs.items()}
     fmts = {key: nmea.NmeaFormat.from_dict(c.profile.nmea) for key, c in cfgs.items()}
@@ -148,14 +150,14 @@ def build_fleet(
         for m in members:
             p = cfgs[(m.profile, m.baud)].profile
             if serial_port:
-                devices.append(transport.SerialDevice(serial_port, p.baud))
+                devices.append(SerialDevice(serial_port, p.baud))
             else:
                 pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
-                waiter.add(transport.PtyDevice(Path(m.link), baud=p.baud, threaded=False,
+                waiter.add(PtyDevice(Path(m.link), baud=p.baud, threaded=False,
                                                **pacing))
         # The simulated clock starts once everything is loaded and made: with --start-time,
         # the first epoch is the first on the grid after it, however long the set-up took.
-        clock = daemon.SimClock(t_start)
+        clock = poseproviders.SimClock(t_start)
         t0 = clock.now_unix_s()
         # Logs and the demo walk start at --start-time exactly (else now): a receiver's poses
         # are then the same in every run that starts there, to the bit.
@@ -180,7 +182,7 @@ def build_fleet(
 
 
 def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s: float,
-              clock: daemon.SimClock, t0: float) -> daemon.PoseProvider:
+              clock: poseproviders.SimClock, t0: float) -> poseproviders.PoseProvider:
     """The pose source of ``--poses`` for these receivers."""
     ids = [m.receiver_id for m in members]
     if spec == "demo":
@@ -189,19 +191,20 @@ def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s
         if waypoints is None or len(waypoints) < 2:
             # Open sky or a scene without [demo]: a 40 m square around the origin, 1.5 m up.
             waypoints = np.array([[0, 0, 1.5], [40, 0, 1.5], [40, 40, 1.5], [0, 40, 1.5]], float)
-        lap = daemon.demo_lap(np.asarray(waypoints, float), float(speed))
+        lap = poseproviders.demo_lap(np.asarray(waypoints, float), float(speed))
         lap_s = float(lap.t_unix_s[-1])
         # A fleet spreads out along the loop: receiver j of n starts j / n of a lap ahead.
-        return daemon.ReceiverPoses({
-            rid: daemon.LoopProvider(lap, t0 - j * lap_s / len(ids), max_gap_s)
+        return poseproviders.ReceiverPoses({
+            rid: poseproviders.LoopProvider(lap, t0 - j * lap_s / len(ids), max_gap_s)
             for j, rid in enumerate(ids)})
     if spec.startswith(("udp://", "tcp://")) or spec == "-":
-        return daemon.LiveProvider(posesource.open_pose_source(spec), georef, clock, max_gap_s,
-                                   receiver_ids=ids)
+        return poseproviders.LiveProvider(posesource.open_pose_source(spec), georef, clock,
+                                          max_gap_s, receiver_ids=ids)
     from virtualgps.run.replay import track_in_scene
 
     # A fleet's log keeps its receivers' timing: all are replayed from the earliest pose.
     scene_tracks = {rid: track_in_scene(tr, georef) for rid, tr in tracks.items() if rid in ids}
     t_first = min((float(tr.t_unix_s[0]) for tr in scene_tracks.values()), default=0.0)
-    return daemon.ReceiverPoses({
-        rid: daemon.TrackProvider(tr, t0, max_gap_s, t_first) for rid, tr in scene_tracks.items()})
+    return poseproviders.ReceiverPoses({
+        rid: poseproviders.TrackProvider(tr, t0, max_gap_s, t_first)
+        for rid, tr in scene_tracks.items()})

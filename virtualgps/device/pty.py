@@ -1,64 +1,37 @@
-"""Where NMEA goes: a pseudo-terminal, a serial port, a file or stdout.
-
-Output devices share one small interface (:class:`OutputDevice`): ``write_epoch`` (never waits
-for the client), ``read_available`` (what the client sent us, e.g. gpsd's ``$PMTK`` probes),
-``close``, ``path`` / ``describe()``, and use as a context manager.
-
-- :class:`PtyDevice` — a pseudo-terminal in raw mode at an explicit baud rate, readable by any
-  user, with a stable symlink to its slave side; output paced to the baud rate like a real serial
-  line, and stale output dropped when nobody reads (see the class docstring for the Linux pty
-  behaviour this relies on).
-- :class:`SerialDevice` — a real serial port (or any pyserial URL, e.g. ``loop://`` in tests).
-- :class:`FileSink` — a file, or stdout for ``-``.
-
-Where poses come from is :mod:`virtualgps.poses.posesource`. Only these two modules, the daemon and
-the CLI touch ptys, serial ports and sockets. Nothing here parses NMEA: bytes in, bytes out.
+"""A pseudo-terminal that looks like the receiver's serial port (:class:`PtyDevice`), in raw
+mode at an explicit baud rate, readable by any user, with a stable symlink to its slave side;
+output paced to the baud rate like a real serial line, and stale output dropped when nobody
+reads (see the class docstring for the Linux pty behaviour this relies on).
 """
 
 from __future__ import annotations
 
-import abc
 import contextlib
 import fcntl
 import logging
 import math
 import os
-import queue
 import select
 import struct
-import sys
 import termios
 import threading
 import time
 import uuid
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import BinaryIO, Self
 
-import serial
-
+from virtualgps.device.output import (
+    _IDLE_POLL_S,
+    _MAX_READ_BYTES_PER_POLL,
+    _RX_MAX_BYTES,
+    QueuedLine,
+    _Epoch,
+)
 from virtualgps.exceptions import ConfigError, VirtualGPSError
-
-__all__ = [
-    "FileSink",
-    "OutputDevice",
-    "PtyDevice",
-    "SerialDevice",
-]
 
 log = logging.getLogger(__name__)
 
-# Largest backlog of client-to-device bytes (PMTK commands) kept for read_available(); a client
-# that floods us loses its oldest bytes rather than growing our memory.
-_RX_MAX_BYTES = 65536
-
-# How often an idle pty writer looks for a reader attaching or leaving. Linux gives no event for
-# "POLLHUP cleared" (poll() reports POLLHUP at once while it holds), so this is polled; 50 ms is
-# far below one epoch at any rate a GPS emits.
-_IDLE_POLL_S = 0.05
 # An attached writer with nothing queued and nothing unread sleeps until an event wakes it; this
 # is only a safety net.
 _IDLE_ATTACHED_S = 1.0
@@ -76,183 +49,6 @@ _MAX_CHUNK_BYTES = 1024
 # flip buffers behind it (~16 KiB more). Keeping our unread share below that buffer keeps the
 # count exact, so the backlog and the age of unread output are known, not guessed.
 _KERNEL_CAP_BYTES = 2048
-
-# How long SerialDevice's writer waits for a stuck port (hardware flow control held, USB adapter
-# gone) before dropping the rest of an epoch. Only the writer thread waits, never the caller.
-_SERIAL_WRITE_TIMEOUT_S = 0.5
-
-# Most client bytes read per wake-up, so a flooding client cannot hold the writer.
-_MAX_READ_BYTES_PER_POLL = 1 << 20
-
-
-# --------------------------------------------------------------------------------------------
-# Output devices
-# --------------------------------------------------------------------------------------------
-
-
-class _Closing:
-    """Context-manager support for anything with ``close()``."""
-
-    def close(self) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-
-class OutputDevice(_Closing, abc.ABC):
-    """Where NMEA bytes go: one epoch at a time, without ever making the caller wait.
-
-    Attributes
-    ----------
-    dropped_bytes : int
-        Bytes handed to ``write_epoch`` that never reached the client (dropped from the queue,
-        flushed from the kernel as stale, or refused by a full port).
-    dropped_epochs : int
-        Whole epochs dropped before any of their bytes were sent.
-    """
-
-    dropped_bytes: int = 0
-    dropped_epochs: int = 0
-
-    @property
-    @abc.abstractmethod
-    def path(self) -> str:
-        """Return what a client opens (link, device, file path, or ``-``)."""
-
-    @abc.abstractmethod
-    def describe(self) -> str:
-        """Return a one-line description of the device for the user."""
-
-    @abc.abstractmethod
-    def write_epoch(self, data: bytes) -> None:
-        """Queue one epoch's bytes for output; return at once.
-
-        Parameters
-        ----------
-        data : bytes
-            The epoch (or a reply such as ``$PMTK001``), sent whole and in order.
-        """
-
-    def read_available(self) -> bytes:
-        """Return what the client sent since the last call, without waiting (``b""`` if none).
-
-        Returns
-        -------
-        bytes
-            Raw bytes, possibly ending mid-line; the caller assembles lines.
-        """
-        return b""
-
-    def fileno(self) -> int | None:
-        """Return a descriptor that turns readable when ``read_available`` has data, or None.
-
-        Returns
-        -------
-        int or None
-            For ``select``; None where the device has no input.
-        """
-        return None
-
-    def set_baud(self, baud: int) -> None:
-        """Change the line rate at run time (a client's ``$PMTK251``); no-op where there is none.
-
-        Parameters
-        ----------
-        baud : int
-            Bits per second, 8N1.
-        """
-        return None
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Release the device; calling it again does nothing."""
-
-
-@dataclass
-class _Epoch:
-    data: bytes
-    t_enqueued_s: float  # time.monotonic() when write_epoch received it
-    offset: int = 0  # bytes already handed to the kernel
-
-
-class _EpochQueue:
-    """Epochs waiting to be written, bounded by size and age; the oldest whole epochs go first.
-
-    Not thread-safe: the owning device guards it with its lock. An epoch whose first bytes were
-    already sent is never dropped by ``trim`` (finishing it keeps the client's sentences whole);
-    ``drop_started`` drops its remainder when the client is known to have lost the beginning.
-    """
-
-    def __init__(self, max_bytes: int, max_age_s: float) -> None:
-        self.max_bytes = max_bytes
-        self.max_age_s = max_age_s
-        self.epochs: deque[_Epoch] = deque()
-        self.queued_bytes = 0
-        self.dropped_bytes = 0
-        self.dropped_epochs = 0
-
-    def __bool__(self) -> bool:
-        return bool(self.epochs)
-
-    def put(self, data: bytes, now_s: float) -> None:
-        self.epochs.append(_Epoch(data, now_s))
-        self.queued_bytes += len(data)
-
-    def put_back(self, epochs: list[_Epoch]) -> None:
-        """Queue whole epochs again ahead of the rest, in their order (their bytes were
-        discarded from the kernel unread)."""
-        for e in reversed(epochs):
-            self.epochs.appendleft(_Epoch(e.data, e.t_enqueued_s))
-            self.queued_bytes += len(e.data)
-
-    def trim(self, now_s: float, kernel_bytes: int) -> None:
-        """Drop the oldest unstarted epochs while the backlog is too large or too old.
-
-        The backlog is ``queued_bytes + kernel_bytes`` (unread in the kernel). The newest epoch
-        is kept unless it is itself older than ``max_age_s``: an epoch larger than the whole
-        budget is still sent rather than never.
-        """
-        while True:
-            first = 1 if self.epochs and self.epochs[0].offset else 0
-            if first >= len(self.epochs):
-                return
-            oldest = self.epochs[first]
-            too_old = now_s - oldest.t_enqueued_s > self.max_age_s
-            too_big = self.queued_bytes + kernel_bytes > self.max_bytes
-            if not too_old and (not too_big or first == len(self.epochs) - 1):
-                return
-            del self.epochs[first]
-            self.queued_bytes -= len(oldest.data)
-            self.dropped_bytes += len(oldest.data)
-            self.dropped_epochs += 1
-
-    def drop_started(self) -> None:
-        """Drop the unsent rest of an epoch whose beginning was already sent."""
-        if self.epochs and self.epochs[0].offset:
-            head = self.epochs.popleft()
-            rest = len(head.data) - head.offset
-            self.queued_bytes -= rest
-            self.dropped_bytes += rest
-
-    def peek(self, max_bytes: int) -> bytes:
-        head = self.epochs[0]
-        return head.data[head.offset : head.offset + max_bytes]
-
-    def advance(self, n_bytes: int) -> None:
-        head = self.epochs[0]
-        head.offset += n_bytes
-        self.queued_bytes -= n_bytes
-        if head.offset >= len(head.data):
-            self.epochs.popleft()
 
 
 def _termios_speed(baud: int) -> int:
@@ -328,7 +124,7 @@ def _make_link(link_path: Path, target: Path) -> None:
         raise VirtualGPSError(f"cannot create the link {link_path} -> {target}: {exc}") from exc
 
 
-class PtyDevice(OutputDevice):
+class PtyDevice(QueuedLine):
     """A pseudo-terminal that looks like the receiver's serial port to gpsd and ROS drivers.
 
     The slave side is put in raw 8N1 mode with ``baud`` in its termios, made readable and
@@ -412,29 +208,18 @@ class PtyDevice(OutputDevice):
     def __init__(self, link_path: Path | None, baud: int = 38400, max_backlog_s: float = 2.0,
                  chunk_s: float = _CHUNK_S, threaded: bool = True):
         speed = _termios_speed(baud)
-        if not max_backlog_s > 0:
-            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
         if not 0 < chunk_s <= 1.0:
             raise ConfigError(f"chunk_s must be seconds in (0, 1], not {chunk_s!r}")
         self._chunk_s = float(chunk_s)
-        self.baud = baud
-        self.max_backlog_s = float(max_backlog_s)
-        self._bytes_per_s = baud / 10.0  # 8N1: start + 8 data + stop bits per byte
-        self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
-        self._chunk_bytes = int(min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
-        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
-        self._lock = threading.Lock()
+        super().__init__(baud, max_backlog_s)
         # Both the writer thread and read_available() drain the master; one at a time, so the
         # client's bytes keep their order.
         self._rx_lock = threading.Lock()
         self._rx = bytearray()
-        self._closed = False
         self.link_path = Path(link_path) if link_path is not None else None
         self.reader_attached = False
-        self.written_bytes = 0
         self.kernel_flushes = 0
         self.rx_dropped_bytes = 0
-        self._kernel_dropped_bytes = 0
         self._kernel_unread = 0
         self._measured_s = -math.inf  # when TIOCINQ was last read (time.monotonic)
         # Bytes written since the last flush, with when their epoch was queued: (t_monotonic_s,
@@ -499,44 +284,6 @@ class PtyDevice(OutputDevice):
             return str(self.slave_path)
         return f"{self.slave_path} -> {self.link_path}"
 
-    @property
-    def dropped_bytes(self) -> int:  # type: ignore[override]
-        """Return bytes that never reached a client (queue drops and kernel flushes)."""
-        return self._queue.dropped_bytes + self._kernel_dropped_bytes
-
-    @property
-    def dropped_epochs(self) -> int:  # type: ignore[override]
-        """Return whole epochs dropped before any byte of them was sent."""
-        return self._queue.dropped_epochs
-
-    @property
-    def queued_bytes(self) -> int:
-        """Return bytes waiting in our queue (not yet handed to the kernel)."""
-        return self._queue.queued_bytes
-
-    def write_epoch(self, data: bytes) -> None:
-        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
-
-        Parameters
-        ----------
-        data : bytes
-            The epoch's bytes, sent whole and in order, paced to the baud rate.
-
-        Raises
-        ------
-        VirtualGPSError
-            If the device was closed.
-        """
-        if self._closed:
-            raise VirtualGPSError(f"{self.describe()} is closed")
-        if not data:
-            return
-        with self._lock:
-            now_s = time.monotonic()
-            self._queue.put(bytes(data), now_s)
-            self._queue.trim(now_s, self._kernel_unread)
-        self._wake_writer()
-
     def read_available(self) -> bytes:
         """Return the bytes the client wrote to the slave since the last call (``b""`` if none).
 
@@ -575,15 +322,9 @@ class PtyDevice(OutputDevice):
         ConfigError
             For a baud that is not a positive integer.
         """
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
-            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
+        self.check_baud(baud)
         with self._lock:
-            self.baud = baud
-            self._bytes_per_s = baud / 10.0
-            self.max_backlog_bytes = max(1, int(self.max_backlog_s * self._bytes_per_s))
-            self._chunk_bytes = int(
-                min(_MAX_CHUNK_BYTES, max(1, self._bytes_per_s * self._chunk_s)))
-            self._queue.max_bytes = self.max_backlog_bytes
+            self._set_rate(baud)
         speed = getattr(termios, f"B{baud}", None)
         if speed is not None and not self._closed:
             try:
@@ -637,6 +378,12 @@ class PtyDevice(OutputDevice):
         return bool(self._rx)
 
     # -- writer -----------------------------------------------------------------------------
+
+    def _slice_bytes(self, bytes_per_s: float) -> int:
+        return int(min(_MAX_CHUNK_BYTES, max(1, bytes_per_s * self._chunk_s)))
+
+    def _line_unread_bytes(self) -> int:
+        return self._kernel_unread
 
     @staticmethod
     def _signal(event_fd: int) -> None:
@@ -747,7 +494,7 @@ class PtyDevice(OutputDevice):
                 stale = _unread_bytes(fd)
                 termios.tcflush(fd, termios.TCIFLUSH)
                 if stale:
-                    self._kernel_dropped_bytes += stale
+                    self._line_dropped_bytes += stale
                     self.kernel_flushes += 1
             except OSError as exc:
                 log.debug("flushing %s failed: %s", self.slave_path, exc)
@@ -814,7 +561,7 @@ class PtyDevice(OutputDevice):
                 # while: nothing else may follow soon).
                 recent = self._unread_recent(now_s, unread)
                 self._flush_kernel()
-                self._kernel_dropped_bytes -= sum(e.offset for e in recent)  # (back, not lost)
+                self._line_dropped_bytes -= sum(e.offset for e in recent)  # (back, not lost)
                 unread = 0
                 with self._lock:
                     if recent and self._queue and self._queue.epochs[0] is recent[-1]:
@@ -884,342 +631,3 @@ class PtyDevice(OutputDevice):
                             os.eventfd_read(self._wake)
         except Exception:
             log.exception("the writer of %s stopped", self.slave_path)
-
-
-class SerialDevice(OutputDevice):
-    """A real serial port (or any pyserial URL such as ``loop://``) driven 8N1 at ``baud``.
-
-    A writer thread sends queued epochs; ``write_epoch`` only appends to a queue bounded like
-    :class:`PtyDevice`'s (``max_backlog_s`` of line time, counting the port's own output queue
-    where pyserial reports it). The UART paces the bytes itself. Writes that stall longer than
-    0.5 s (hardware flow control held, adapter unplugged) are dropped and counted; when the
-    port's output queue holds more than the backlog, it is discarded as stale.
-
-    pyserial's own non-blocking mode (``write_timeout=0``) is not used: on POSIX ports it spins
-    while the kernel buffer is full, and ``loop://`` raises SerialTimeoutException for every
-    write. Only the writer thread ever waits.
-
-    Parameters
-    ----------
-    port : str
-        Device (``/dev/ttyUSB0``) or pyserial URL (``loop://``, ``socket://host:port``).
-    baud : int
-        Line rate in bits per second.
-    max_backlog_s : float
-        Most output, in seconds of line time, that may wait to be sent.
-
-    Raises
-    ------
-    VirtualGPSError
-        If the port cannot be opened.
-    """
-
-    def __init__(self, port: str, baud: int, max_backlog_s: float = 2.0) -> None:
-        if not isinstance(baud, int) or baud <= 0:
-            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
-        if not max_backlog_s > 0:
-            raise ConfigError(f"max_backlog_s must be positive seconds, not {max_backlog_s!r}")
-        self.port = port
-        self.baud = baud
-        self.max_backlog_s = float(max_backlog_s)
-        bytes_per_s = baud / 10.0
-        self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
-        # Slices of ~0.1 s keep each write well inside the write timeout (loop:// refuses a
-        # write whose line time exceeds it).
-        self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
-        self._queue = _EpochQueue(self.max_backlog_bytes, self.max_backlog_s)
-        self._lock = threading.Lock()
-        self._has_data = threading.Condition(self._lock)
-        self._pending_baud: int | None = None
-        self._closed = False
-        self._port_dropped_bytes = 0
-        self.written_bytes = 0
-        self._error_logged = False
-        try:
-            self._serial = serial.serial_for_url(
-                port,
-                baudrate=baud,
-                bytesize=serial.EIGHTBITS,
-                parity=serial.PARITY_NONE,
-                stopbits=serial.STOPBITS_ONE,
-                timeout=0,  # reads return at once
-                write_timeout=_SERIAL_WRITE_TIMEOUT_S,
-                xonxoff=False,
-                rtscts=False,
-                dsrdtr=False,
-            )
-        except (serial.SerialException, ValueError, OSError) as exc:
-            raise VirtualGPSError(
-                f"cannot open serial port {port} at {baud} baud: {exc}. Check the device name "
-                f"and that you may use it (on Linux, membership of the dialout group)"
-            ) from exc
-        self.alive = True
-        self._thread = threading.Thread(
-            target=self._run, name=f"virtualgps-serial-{port}", daemon=True
-        )
-        self._thread.start()
-
-    @property
-    def path(self) -> str:
-        """Return the port name or URL."""
-        return self.port
-
-    def describe(self) -> str:
-        """Return ``PORT at BAUD baud``."""
-        return f"{self.port} at {self.baud} baud"
-
-    @property
-    def dropped_bytes(self) -> int:  # type: ignore[override]
-        """Return bytes that never reached the port (queue drops, stalls, flushed output)."""
-        return self._queue.dropped_bytes + self._port_dropped_bytes
-
-    @property
-    def dropped_epochs(self) -> int:  # type: ignore[override]
-        """Return whole epochs dropped before any byte of them was sent."""
-        return self._queue.dropped_epochs
-
-    def write_epoch(self, data: bytes) -> None:
-        """Queue one epoch; return at once, dropping the oldest epochs if the backlog is full.
-
-        Parameters
-        ----------
-        data : bytes
-            The epoch's bytes.
-
-        Raises
-        ------
-        VirtualGPSError
-            If the device was closed.
-        """
-        if self._closed:
-            raise VirtualGPSError(f"{self.describe()} is closed")
-        if not data:
-            return
-        with self._has_data:
-            now_s = time.monotonic()
-            self._queue.put(bytes(data), now_s)
-            self._queue.trim(now_s, 0)
-            self._has_data.notify()
-
-    def read_available(self) -> bytes:
-        """Return what arrived on the port since the last call, without waiting.
-
-        Returns
-        -------
-        bytes
-            At most the newest 64 KiB of it.
-        """
-        if self._closed:
-            return b""
-        try:
-            data = self._serial.read(max(self._serial.in_waiting, 0))
-            while len(data) < _MAX_READ_BYTES_PER_POLL and self._serial.in_waiting:
-                data += self._serial.read(self._serial.in_waiting)
-        except (serial.SerialException, OSError) as exc:
-            self._log_error("read", exc)
-            return b""
-        return bytes(data[-_RX_MAX_BYTES:])
-
-    def fileno(self) -> int | None:
-        """Return the port's descriptor (readable on input) where it has one, else None."""
-        if self._closed:
-            return None
-        try:
-            return self._serial.fileno()
-        except (AttributeError, NotImplementedError, OSError, ValueError,
-                serial.SerialException):  # (pyserial's URL handlers: io.UnsupportedOperation)
-            return None
-
-    def close(self) -> None:
-        """Stop the writer and close the port."""
-        if self._closed:
-            return
-        self._closed = True
-        with self._has_data:
-            self.alive = False
-            self._has_data.notify()
-        with contextlib.suppress(AttributeError, serial.SerialException):
-            self._serial.cancel_write()  # wake a writer stalled on a held port
-        self._thread.join(timeout=5.0)
-        with contextlib.suppress(serial.SerialException, OSError):
-            self._serial.close()
-
-    def set_baud(self, baud: int) -> None:
-        """Switch the port to ``baud`` once what is queued now has been sent.
-
-        The writer applies it when its queue runs empty, after the port has transmitted
-        everything (``flush``), so a reply queued before (the ``$PMTK001`` of a ``$PMTK251``)
-        leaves at the old rate, as a receiver acknowledges before it switches.
-
-        Parameters
-        ----------
-        baud : int
-            Bits per second, positive.
-
-        Raises
-        ------
-        ConfigError
-            For a baud that is not a positive integer.
-        """
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
-            raise ConfigError(f"baud must be a positive integer, not {baud!r}")
-        with self._has_data:
-            self._pending_baud = baud
-            self._has_data.notify()
-
-    def _apply_baud(self, baud: int) -> None:
-        try:
-            self._serial.flush()
-            self._serial.baudrate = baud
-        except (serial.SerialException, OSError, ValueError) as exc:
-            self._log_error("changing the baud rate", exc)
-        with self._lock:
-            if self._pending_baud == baud:
-                self._pending_baud = None
-            self.baud = baud
-            bytes_per_s = baud / 10.0
-            self.max_backlog_bytes = max(1, int(self.max_backlog_s * bytes_per_s))
-            self._chunk_bytes = int(max(1, bytes_per_s * 0.1))
-            self._queue.max_bytes = self.max_backlog_bytes
-
-    def _log_error(self, what: str, exc: BaseException) -> None:
-        if not self._error_logged:
-            self._error_logged = True
-            log.warning("%s on %s failed: %s (further failures not logged)", what, self.port, exc)
-
-    def _port_backlog(self) -> int:
-        try:
-            return int(self._serial.out_waiting)
-        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
-            return 0
-
-    def _run(self) -> None:
-        try:
-            while True:
-                with self._has_data:
-                    while self.alive and not self._queue and self._pending_baud is None:
-                        self._has_data.wait()
-                    if not self.alive:
-                        return
-                    pending = self._pending_baud if not self._queue else None
-                if pending is not None:
-                    self._apply_baud(pending)
-                    continue
-                waiting = self._port_backlog()
-                if waiting > self.max_backlog_bytes:
-                    # Output the line could not send in max_backlog_s: stale, discard it.
-                    with contextlib.suppress(serial.SerialException, OSError):
-                        self._serial.reset_output_buffer()
-                        self._port_dropped_bytes += waiting
-                        waiting = 0
-                with self._lock:
-                    self._queue.trim(time.monotonic(), waiting)
-                    if not self._queue:
-                        continue
-                    chunk = self._queue.peek(self._chunk_bytes)
-                try:
-                    n_sent = self._serial.write(chunk) or 0
-                except (serial.SerialTimeoutException, queue.Full) as exc:
-                    # queue.Full: loop:// when its 4 KiB buffer stays full for the timeout.
-                    self._log_error("write", exc)
-                    with self._lock:
-                        self._queue.drop_started()
-                        if self._queue and not self._queue.epochs[0].offset:
-                            # The port is stuck: drop the epoch whole (pyserial does not say
-                            # how much of the slice went out before the timeout).
-                            head = self._queue.epochs.popleft()
-                            self._queue.queued_bytes -= len(head.data)
-                            self._queue.dropped_bytes += len(head.data)
-                            self._queue.dropped_epochs += 1
-                    continue
-                except (serial.SerialException, OSError) as exc:
-                    self._log_error("write", exc)
-                    time.sleep(_IDLE_POLL_S)  # a vanished port: do not spin
-                    continue
-                with self._lock:
-                    if n_sent:
-                        self._queue.advance(n_sent)
-                        self.written_bytes += n_sent
-        except Exception:
-            log.exception("the writer of %s stopped", self.port)
-
-
-class FileSink(OutputDevice):
-    """NMEA to a file, or to stdout for ``-`` (binary, unchanged).
-
-    For ``replay``: writes are synchronous, so a slow pipe makes the caller wait (back-pressure,
-    no bytes lost, output byte-identical); this is the one device whose ``write_epoch`` may
-    wait. Use a pty or serial device for live output.
-
-    Parameters
-    ----------
-    path : Path or str
-        File to create (truncated), or ``-`` for stdout.
-    flush_each_epoch : bool
-        Flush after every epoch (for ``tail -f`` or a live pipe); off for throughput.
-
-    Raises
-    ------
-    VirtualGPSError
-        If the file cannot be created.
-    """
-
-    def __init__(self, path: Path | str, flush_each_epoch: bool = False) -> None:
-        self._name = str(path)
-        self.flush_each_epoch = flush_each_epoch
-        self.written_bytes = 0
-        self._closed = False
-        self._stream: BinaryIO
-        if self._name == "-":
-            self._stream = sys.stdout.buffer
-            self._owned = False
-        else:
-            try:
-                self._stream = open(path, "wb")  # noqa: SIM115 - closed in close()
-            except OSError as exc:
-                raise VirtualGPSError(f"cannot write {path}: {exc}") from exc
-            self._owned = True
-
-    @property
-    def path(self) -> str:
-        """Return the file path, or ``-`` for stdout."""
-        return self._name
-
-    def describe(self) -> str:
-        """Return the file path, or ``stdout``."""
-        return "stdout" if self._name == "-" else self._name
-
-    def write_epoch(self, data: bytes) -> None:
-        """Write one epoch's bytes.
-
-        Parameters
-        ----------
-        data : bytes
-
-        Raises
-        ------
-        VirtualGPSError
-            If the sink was closed or the write failed (disk full, closed pipe).
-        """
-        if self._closed:
-            raise VirtualGPSError(f"{self.describe()} is closed")
-        try:
-            self._stream.write(data)
-            if self.flush_each_epoch:
-                self._stream.flush()
-        except OSError as exc:
-            raise VirtualGPSError(f"cannot write {self.describe()}: {exc}") from exc
-        self.written_bytes += len(data)
-
-    def close(self) -> None:
-        """Flush, and close the file (stdout is flushed, not closed)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._stream.flush()
-        except OSError as exc:
-            log.warning("flushing %s failed: %s", self.describe(), exc)
-        finally:
-            if self._owned:
-                self._stream.close()
