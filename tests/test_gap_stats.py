@@ -266,3 +266,18 @@ def test_lag_curvature_tells_a_delay_from_a_filter():
     assert k_delay == pytest.approx(lag ** 2 / 2, rel=0.15)
     assert k_filter == pytest.approx(lag ** 2, rel=0.15)
     assert stats  # (scipy is the reference the p-values rely on)
+
+
+def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():
+    """A delay of 2 s on a turning track is found; on a straight track at constant speed a lag
+    and a constant bias move the fixes alike, so no lag is claimed (not a huge number)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(300.0)
+    heading = 0.02 * t  # a slow circle: the velocity turns
+    vel = np.stack([5 * np.cos(heading), 5 * np.sin(heading), 0 * t], axis=1)
+    err = -2.0 * vel + rng.normal(0, 1.0, (300, 3)) + [3.0, -1.0, 0.0]
+    moving = np.ones(300, bool)
+    assert where.lag_s(err[None], vel, moving)[0] == pytest.approx(2.0, abs=0.1)
+    straight = np.tile([0.0, 1.0, 0.0], (300, 1))
+    err = -2.0 * straight + rng.normal(0, 1.0, (300, 3))
+    assert np.isnan(where.lag_s(err[None], straight, moving)[0])

@@ -162,7 +162,7 @@ def shift_truth(run: Run, east_m: float, north_m: float) -> Run:
 def time_offset(run: Run, corr_time_s: float) -> dict | None:
     """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
     +-30 s), and the least-squares lag of the fixes behind the truth per block with a 95 %
-    interval over blocks (None where the truth does not move)."""
+    interval over blocks (None where the truth does not move, or moves at one velocity)."""
     v = run.view
     info = run.info.get("offset", {})
     moving = v.valid & (v.speed_mps >= MOVING_MPS)
@@ -173,6 +173,8 @@ def time_offset(run: Run, corr_time_s: float) -> dict | None:
     lags = np.array([lag_s(run.err_real, v.vel_enu_mps, m)[0] for m in bl])
     lags = lags[np.isfinite(lags)]
     whole = float(lag_s(run.err_real, v.vel_enu_mps, moving)[0])
+    if not math.isfinite(whole):  # a truth at constant velocity: a lag is a bias there
+        return None
     out = {"name": "time_offset", "kind": "clock", "run": v.name, "lag_s": whole,
            "blocks": int(lags.size), "interval_s": [math.nan, math.nan],
            "ingest_best_s": info.get("best_s"), "applied_s": run.info.get("time_offset_s", 0.0),

@@ -30,6 +30,7 @@ from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.select import Request, Selection, drive, select
 from virtualgps.gap.simulator import OUTER, Simulator
 from virtualgps.gap.where import (
+    LAG_MIN_VEL_RMS_MPS,
     Obs,
     RunView,
     errors_enu,
@@ -226,9 +227,23 @@ def not_assessed(runs: list[Run]) -> list[dict]:
                     "taken about the run's median fix"})
     if all(np.all(r.view.speed_mps < 0.3) for r in runs):
         out.append({"metric": "lag_s", "reason": "the truth never moves"})
+    elif not any(_velocity_varies(r) for r in runs):
+        out.append({"metric": "lag_s", "reason": "the truth moves at one velocity: a lag "
+                    "cannot be told from a constant bias"})
     if not any(np.isfinite(r.view.real.hdop).any() for r in runs):
         out.append({"metric": "hdop_median", "reason": "no HDOP in the real logs"})
     return out
+
+
+def _velocity_varies(run: Run) -> bool:
+    """Whether the run's moving truth varies its velocity enough for
+    :func:`~virtualgps.gap.where.lag_s`."""
+    v = run.view
+    moving = v.valid & (v.speed_mps >= 0.3)
+    vel = v.vel_enu_mps[moving, :2]
+    vel = vel[np.isfinite(vel).all(axis=1)]
+    return vel.shape[0] >= 30 and float(np.sum((vel - vel.mean(axis=0)) ** 2)) >= (
+        vel.shape[0] * LAG_MIN_VEL_RMS_MPS ** 2)
 
 
 EPOCH_SEGMENTS = ("all", "startup", "steady", "moving", "stationary", "near_buildings", "open")

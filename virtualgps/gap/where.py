@@ -340,6 +340,12 @@ def _disagreement(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
     return (np.abs(fa - fb)[:, ok] * w[ok]).sum(axis=1) / w[ok].sum()
 
 
+# The least velocity variation (rms about the mean, m/s) that separates a lag from a bias: a
+# lag's standard error is about the error's sigma / (this * sqrt(epochs)), ~5 s for 3 m over 30
+# epochs; the acceleration term of lag_curvature_s2 asks for 0.1 m/s^2 rms likewise.
+LAG_MIN_VEL_RMS_MPS = 0.2
+
+
 def _dt(t: np.ndarray) -> float:
     return float(np.median(np.diff(t))) if t.size > 1 else 1.0
 
@@ -349,7 +355,9 @@ def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) ->
     e_k = b - L v_k over the epochs (horizontal error e, truth velocity v, a constant bias b
     per seed). A fix describing where the antenna was L seconds earlier (``latency``), or a
     low-pass filter of time constant L at constant velocity (``nav_filter``), gives L; a slowly
-    varying error adds little, as the vehicle turns and stops.
+    varying error adds little, as the vehicle turns and stops. NaN with fewer than 30 epochs, or
+    where the truth's velocity varies by less than LAG_MIN_VEL_RMS_MPS (rms about its mean): at
+    a constant velocity a lag and a constant bias move the fixes alike.
 
     err_enu_m : (s, n, 3); vel_enu_mps : (n, 3); epochs : (n,) bool; returns (s,) seconds
     """
@@ -362,7 +370,7 @@ def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) ->
         y = e[ok, :2]
         vc, yc = v - v.mean(axis=0), y - y.mean(axis=0)
         den = float(np.sum(vc * vc))
-        if den > 0:
+        if den >= ok.sum() * LAG_MIN_VEL_RMS_MPS ** 2:
             out[i] = -float(np.sum(vc * yc)) / den
     return out
 
