@@ -1,7 +1,7 @@
 """Benchmark: replay throughput and live CPU per epoch on the Magdeburg scene.
 
-Usage (pinned to one core, as the README's figures were measured; whole processes also on
-both, where a long replay computes the next chunk's sky in a second thread):
+Usage (pinned to one core, as the figures in docs/performance.md were measured; whole processes also
+on both, where a long replay computes the next chunk's sky in a second thread):
 
     taskset -c 0 python tools/bench_replay.py [--profile NAME] [--hours 1] [--live-epochs 2000]
         [--repeat 5]

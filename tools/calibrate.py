@@ -4,7 +4,7 @@ Usage::
 
     python tools/calibrate.py [--profile holux-m1000] [--config extra.toml] [--seeds 8]
                               [--site tools/mt3339-site.toml] [--data ../shared/data]
-                              [--readme README.md] [--plot cal.png]
+                              [--readme docs/profiles.md] [--plot cal.png]
 
 The real column comes from :func:`mtk_logs.real_calibration_stats` (also
 printed by tools/real_stats.py), the simulated one from

@@ -12,7 +12,7 @@ b. Magdeburg waypoints (14 logs, truth = markers 5-18 at 1.5 m above the mesh gr
 c. GSDC 2020-05-14 drive (GGA+RMC, SPAN truth) against ``holux-m1000``: runs without GSV/GSA,
    lists what it cannot assess, reports the phone's error statistics.
 
-Each case writes its report folder under --out and prints one line per check; the README's
+Each case writes its report folder under --out and prints one line per check; docs/gap.md's
 "Real withheld cases" table is made from this output.
 """
 

@@ -68,7 +68,7 @@ class Statistic:
 
     key : the :func:`virtualgps.gap.metrics.summary` key
     log : "mt3339_static" or "m241_moving"
-    label : what the README calls it
+    label : what docs/profiles.md calls it
     tolerance : allowed |sim / real - 1| (the issue's +-20 %); None: shown, not calibrated
     abs_tolerance : allowed |sim - real| instead (dB-Hz, shares), where a ratio means little
     """

@@ -1,4 +1,4 @@
-"""The README's self-check table from a ``selfcheck.json`` (``virtualgps gap --selfcheck``).
+"""The self-check table of docs/gap.md from a ``selfcheck.json`` (``virtualgps gap --selfcheck``).
 
     python tools/selfcheck_table.py sc/selfcheck.json
 

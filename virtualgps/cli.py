@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="run this many receivers, each on its own pty (ids 0..N-1, seed "
                      "--seed + id); poses carry \"id\" (default 1)")
     run.add_argument("--fleet", help="TOML file listing the receivers (profile, seed, link, "
-                     "baud, antenna offset of each; see the README)")
+                     "baud, antenna offset of each; see docs/fleets.md)")
     run.add_argument("--serial", help="drive this real serial port instead of a pty")
     run.add_argument("--baud", type=int, help="baud rate (default: the profile's, 38400)")
     run.add_argument("--duration", type=float, help="stop after this many seconds")

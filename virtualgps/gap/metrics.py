@@ -1,7 +1,7 @@
 """Statistics of receiver output: position error, its correlation in time, satellites, DOP, C/N0.
 
-Owns the metrics shared by the profile calibration (README table, ``tools/real_stats.py``) and
-the sim-to-real gap tool (DESIGN section 7.1): pure numpy functions of per-epoch arrays, plus
+Owns the metrics shared by the profile calibration (docs/profiles.md table, ``tools/real_stats.py``)
+and the sim-to-real gap tool (DESIGN section 7.1): pure numpy functions of per-epoch arrays, plus
 :func:`summary`, which computes them all for any record holding epochs: the simulator's
 :class:`virtualgps.receiver.records.Fixes` and the real-log records of :mod:`mtk_logs`.
 

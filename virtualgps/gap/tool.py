@@ -294,7 +294,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
         "gap_definition": "mean over the assessed score metrics of each metric's distance: "
                           "max(0, |z| - 1), z the normal quantile of the real value's two-sided "
                           "predictive p-value against the seeds (0 within the metric's floor), "
-                          "at most 5; about 0.1 under the null (README: The gap score)",
+                          "at most 5; about 0.1 under the null (docs/gap.md: The gap score)",
         "where_final": where_final,
         "unexplained": dg.unexplained(where_final),
         "not_assessed": dg.not_assessed(runs),

@@ -1,7 +1,7 @@
 """Receiver profiles: TOML files (built-ins in ``virtualgps/receiver/profiles/``) into frozen
 dataclasses.
 
-Precedence of settings (documented once, in the README): built-in defaults < profile < config
+Precedence of settings (documented once, in docs/usage.md): built-in defaults < profile < config
 file (``--config``) < command-line flags. A config file may hold run settings at its top level
 (``scene``, ``seed``, ...; see :data:`RUN_KEYS`), a ``[georef]`` table, and any profile key or
 table, which overrides the profile's (e.g. ``[noise] max_noise_m = 8.0``).
@@ -127,7 +127,7 @@ class DopErrorParams:
     # Doppler: each satellite's range-rate error (zenith sigma, m/s, scaled with elevation like
     # the UERE; first-order Gauss-Markov over range_rate_tau_s), solved by the same weighted
     # least squares into the reported velocity: a static receiver prints small speeds and a
-    # wandering course, as the MT3339's static hours do (calibrated there, README).
+    # wandering course, as the MT3339's static hours do (calibrated there, docs/profiles.md).
     range_rate_sigma_mps: float = 0.05
     range_rate_tau_s: float = 1.0
 
