@@ -263,6 +263,26 @@ class QueuedLine(OutputDevice):
         """Bytes already in the line that the client has not read (part of the backlog)."""
         return 0
 
+    def set_baud(self, baud: int) -> None:
+        """Change the line's rate (a client's ``$PMTK251``): when, the kind of line says.
+
+        Parameters
+        ----------
+        baud : int
+            Bits per second, 8N1; positive.
+
+        Raises
+        ------
+        ConfigError
+            For a baud that is not a positive integer.
+        """
+        self.check_baud(baud)
+        self._change_rate(baud)
+
+    @abc.abstractmethod
+    def _change_rate(self, baud: int) -> None:
+        """Take the valid rate ``baud``."""
+
     @abc.abstractmethod
     def _wake_writer(self) -> None:
         """Tell the writer that an epoch or a new rate is waiting."""

@@ -306,23 +306,10 @@ class PtyDevice(QueuedLine):
         """Return an event descriptor readable while client bytes wait for read_available."""
         return None if self._closed else self._rx_event
 
-    def set_baud(self, baud: int) -> None:
-        """Pace output at ``baud`` from now on (bytes already queued included).
-
-        The slave's termios speed follows where ``baud`` is a standard rate; the pty itself
-        passes bytes at any speed, so the pacing is what a client notices.
-
-        Parameters
-        ----------
-        baud : int
-            Bits per second, 8N1; positive.
-
-        Raises
-        ------
-        ConfigError
-            For a baud that is not a positive integer.
-        """
-        self.check_baud(baud)
+    def _change_rate(self, baud: int) -> None:
+        """Pace output at ``baud`` from now on (bytes already queued included). The slave's
+        termios speed follows where ``baud`` is a standard rate; the pty itself passes bytes at
+        any speed, so the pacing is what a client notices."""
         with self._lock:
             self._set_rate(baud)
         speed = getattr(termios, f"B{baud}", None)

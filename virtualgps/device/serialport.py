@@ -139,24 +139,11 @@ class SerialDevice(QueuedLine):
         with contextlib.suppress(serial.SerialException, OSError):
             self._serial.close()
 
-    def set_baud(self, baud: int) -> None:
-        """Switch the port to ``baud`` once what is queued now has been sent.
-
-        The writer applies it when its queue runs empty, after the port has transmitted
-        everything (``flush``), so a reply queued before (the ``$PMTK001`` of a ``$PMTK251``)
-        leaves at the old rate, as a receiver acknowledges before it switches.
-
-        Parameters
-        ----------
-        baud : int
-            Bits per second, positive.
-
-        Raises
-        ------
-        ConfigError
-            For a baud that is not a positive integer.
-        """
-        self.check_baud(baud)
+    def _change_rate(self, baud: int) -> None:
+        """Switch the port to ``baud`` once what is queued now has been sent: the writer applies
+        it when its queue runs empty, after the port has transmitted everything (``flush``), so
+        a reply queued before (the ``$PMTK001`` of a ``$PMTK251``) leaves at the old rate, as a
+        receiver acknowledges before it switches."""
         with self._has_data:
             self._pending_baud = baud
             self._has_data.notify()
