@@ -43,7 +43,6 @@ _IDLE_POLL_S = 0.05
 _MAX_READ_BYTES_PER_POLL = 1 << 20
 
 
-
 class _Closing:
     """Context-manager support for anything with ``close()``."""
 

@@ -27,7 +27,6 @@ log = logging.getLogger(__name__)
 _SERIAL_WRITE_TIMEOUT_S = 0.5
 
 
-
 class SerialDevice(QueuedLine):
     """A real serial port (or any pyserial URL such as ``loop://``) driven 8N1 at ``baud``.
 

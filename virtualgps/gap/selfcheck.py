@@ -30,34 +30,6 @@ from virtualgps.gap.synthetic import (
 # --- trajectories ------------------------------------------------------------------------------
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 def default_labels(effects: tuple[str, ...] | None) -> list[str]:
     """The trial labels of a self-check: every injectable effect (or those asked), the null
     trials of each profile, and the pairs (all, when no effect is named)."""

@@ -76,20 +76,6 @@ def cn0_from_elevation_dbhz(
     return horizon_dbhz + (zenith_dbhz - horizon_dbhz) * s
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
     """C/N0 each satellite's signal arrives with, without random fading (``virtualgps sky``).
 
@@ -160,24 +146,6 @@ def tracked_cn0(
     usable = tracked & (cn0 - fade >= ct.use_dbhz) if ct.use_dbhz > 0.0 else tracked
     return out, usable, {"fade_db": _carried(fade, fade0), "tracked": _carried(tracked, tracked0),
                          "acq_run": run}
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 def simulate(

@@ -99,24 +99,6 @@ def track(
 # NLOS: specular reflections off vertical facades (image method).
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 # --------------------------------------------------------------------------------------------
 # Foliage: attenuation by the path length through tree crowns.
 

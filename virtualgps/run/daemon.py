@@ -35,23 +35,6 @@ from virtualgps.run.poseproviders import PoseProvider, SimClock
 log = logging.getLogger(__name__)
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 @dataclass
 class DaemonStats:
     """Counters the status line and the exit summary show.

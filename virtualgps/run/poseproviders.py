@@ -345,6 +345,3 @@ class ReceiverPoses(_KnownPoses):
     def close(self) -> None:
         for p in self.providers.values():
             p.close()
-
-
-

@@ -117,7 +117,6 @@ _TABLE_PRN = re.compile(r"^G0*(\d{1,3})$", re.IGNORECASE)
 _TABLE_NORAD = re.compile(r"^(\d{1,5})[A-Z]?$", re.IGNORECASE)
 
 
-
 def default_tle_path() -> Path:
     """Return the path of the default bundled TLE set (the newest one).
 

@@ -686,4 +686,3 @@ def _demo(cfg: _SceneToml) -> tuple[F64, float]:
     if not speed > 0.0:
         cfg.fail("demo", "speed_mps", f"demo.speed_mps = {speed}; expected > 0")
     return arr, speed
-
