@@ -2,17 +2,18 @@
 
     python tools/selfcheck_table.py sc/selfcheck.json
 
-Per trial label (an injected effect, a pair, a null trial, a real-log base): how often the
-diagnosis was right, what it ranked first instead (``nothing``: no effect added), the main
+Per trial label (an injected effect, a pair, a null trial, a real-log base): how often the diagnosis
+was right, what it ranked first where it was wrong (``nothing``: no effect added), the main
 parameter injected against recovered (medians, the median absolute error, and how often the
-recovered interval held the injected value), and the median outer-test shrinkage of the gap
-(1 - gap_after / gap_before); then the band's calibration under the null.
+recovered interval held the injected value), and the median outer-test shrinkage of the gap (1 -
+gap_after / gap_before); then the band's calibration under the null.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -66,16 +67,13 @@ def _param_cell(effect: str, trials: list[dict]) -> str:
 
 def table(result: dict) -> str:
     """The markdown table of one self-check result."""
-    out = ["| trials | right | ranked first instead | parameter: injected → recovered, median | "
-           "outer-test gap, median shrink |",
+    out = ["| trials | right | ranked first where wrong | parameter: injected → recovered, "
+           "median | outer-test gap, median shrink |",
            "|---|---|---|---|---|"]
     for label, s in result["summary"].items():
         trials = [t for t in result["trials"] if t["injected"] == label]
-        trials_effects = set(trials[0]["effects"]) or {"nothing"}
-        others = ({} if s["kind"] == "real" else
-                  {k: v for k, v in result["confusion"][label].items()
-                   if k not in trials_effects})
-        instead = ", ".join(f"`{k}` {v}" for k, v in sorted(others.items())) or "—"
+        wrong = Counter(t["ranked_first"] for t in trials if not t["success"])
+        instead = ", ".join(f"`{k}` {v}" for k, v in sorted(wrong.items())) or "—"
         shrink = [1.0 - t["gap_after"] / t["gap_before"] for t in trials
                   if t["gap_before"] and t["gap_after"] is not None and t["gap_before"] > 0]
         effect = trials[0]["effects"][0] if trials[0]["effects"] else None
