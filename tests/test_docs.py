@@ -71,3 +71,21 @@ def _has_module(name: str) -> bool:
     import importlib.util
 
     return importlib.util.find_spec(name) is not None
+
+
+def _slug(heading: str) -> str:
+    """GitHub's (and MkDocs' default) anchor of a Markdown heading."""
+    text = re.sub(r"[`*_]", "", heading.strip().lower())
+    text = re.sub(r"[^\w\- ]", "", text)
+    return text.replace(" ", "-")
+
+
+def test_the_readme_links_to_pages_and_headings_that_exist():
+    links = re.findall(r"\]\((docs/[\w\-]+\.md)(?:#([\w\-]+))?\)", (REPO / "README.md").read_text())
+    assert links, "the README links into docs/"
+    for page, anchor in links:
+        path = REPO / page
+        assert path.is_file(), page
+        if anchor:
+            slugs = {_slug(h) for h in re.findall(r"^#+ (.+)$", path.read_text(), re.M)}
+            assert anchor in slugs, f"README: {page}#{anchor} names no heading there"
