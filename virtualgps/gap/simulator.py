@@ -168,32 +168,34 @@ class Simulator:
         """The local worker processes jobs go to (1 on a Dask cluster: its size is its own)."""
         return 1 if self.dask else (self.jobs or os.cpu_count() or 1)
 
-    def score(self, table: dict[str, Any], seed_set: int, unit: int) -> UnitScore:
-        """A unit's score (after :meth:`request`)."""
-        return self._scores[(table_key(table), seed_set, unit)]
+    def scores(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
+               ) -> list[UnitScore]:
+        """Some units' scores (after :meth:`request`)."""
+        key = table_key(table)  # (once for all the units: a selection asks thousands of times)
+        return [self._scores[(key, seed_set, u)] for u in units]
 
     def gap(self, table: dict[str, Any], seed_set: int, units: Sequence[int]) -> float:
         """Mean gap over some units (NaN where none is assessed)."""
-        g = [self.score(table, seed_set, u).gap for u in units]
+        g = [s.gap for s in self.scores(table, seed_set, units)]
         g = [x for x in g if np.isfinite(x)]
         return float(np.mean(g)) if g else float("nan")
 
     def parts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
               ) -> dict[str, float]:
         """Mean distance per metric over the units that assess it."""
-        per = [self.score(table, seed_set, u).parts for u in units]
+        per = [s.parts for s in self.scores(table, seed_set, units)]
         names = sorted({m for p in per for m in p})
         return {m: float(np.mean([p[m] for p in per if m in p])) for m in names}
 
     def sky_bins(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
                  ) -> np.ndarray:
         """(5, n_bins) tracking counts and SNR sums per sky bin, summed over units."""
-        return np.sum([self.score(table, seed_set, u).bins for u in units], axis=0)
+        return np.sum([s.bins for s in self.scores(table, seed_set, units)], axis=0)
 
     def prn_counts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
                    ) -> list[np.ndarray]:
         """Per-PRN tracking counts of some units."""
-        return [self.score(table, seed_set, u).prn for u in units]
+        return [s.prn for s in self.scores(table, seed_set, units)]
 
 
 def ensembles(runs: list[Run], table: dict[str, Any], seeds: Sequence[int], jobs: int | None,

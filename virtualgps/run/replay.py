@@ -185,8 +185,9 @@ def keep_freed_memory() -> bool:
     two cores (five whole processes each, alternately: 1.56-1.63 s against 1.58-1.96 s); in
     chunks of 2048 (CHUNK_EPOCHS since 2026-11-26), 43,000 faults and 0.10-0.11 s. The cost:
     the process keeps its peak heap until it exits, so the ``virtualgps replay`` command calls
-    this (it exits after its replay), not :func:`run_replay`, which long-lived processes (the
-    gap tool's workers) call too.
+    this (it exits after its replay), not :func:`run_replay`, which other processes call too;
+    the gap tool's workers call it once each (they run jobs of the same size again and again,
+    so their peak is what they need anyway).
     (M_MMAP_THRESHOLD -3, M_TRIM_THRESHOLD -1, M_ARENA_MAX -8 in glibc's malloc.h; 32 MB is
     the largest mmap threshold it accepts on 64-bit.)
 
