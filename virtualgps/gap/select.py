@@ -213,29 +213,31 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
     if any(c.learned for c in cands):
         yield [(fold_tables[f], FIT, train[f]) for f in range(n_f)]
     options = {}
+    # (each table made once: the simulator keys its scores by the table object)
+    tables: dict[tuple[int, int], list[dict]] = {}
     req: Request = []
     for ci, c in enumerate(cands):
         for f in range(n_f):
             opts, default = _options(sim, fold_tables[f], c, train[f])
             options[ci, f] = (opts, default)
-            req += [(fx.apply(fold_tables[f], o), FIT, train[f]) for o in opts]
+            tables[ci, f] = [fx.apply(fold_tables[f], o) for o in opts]
+            req += [(t, FIT, train[f]) for t in tables[ci, f]]
     yield req
-    chosen: dict[tuple[int, int], dict] = {}
+    chosen: dict[tuple[int, int], int] = {}
     points: dict[tuple[int, int], dict] = {}
     req = []
-    for (ci, f), (opts, default) in options.items():
-        j = np.array([sim.gap(fx.apply(fold_tables[f], o), FIT, train[f]) for o in opts])
-        k = fit_index(j, default)
-        chosen[ci, f] = opts[k]
+    for (ci, f), (_, default) in options.items():
+        j = np.array([sim.gap(t, FIT, train[f]) for t in tables[ci, f]])
+        k = chosen[ci, f] = fit_index(j, default)
         points[ci, f] = cands[ci].points[k] if not cands[ci].learned else {}
         held = folds[f]
-        for t in (fx.apply(fold_tables[f], chosen[ci, f]), fold_tables[f]):
+        for t in (tables[ci, f][k], fold_tables[f]):
             req += [(t, HELD, held), (t, FIT, held)]
     yield req
     out = []
     for ci, c in enumerate(cands):
-        ov = [chosen[ci, f] for f in range(n_f)]
-        with_t = [fx.apply(fold_tables[f], ov[f]) for f in range(n_f)]
+        ov = [options[ci, f][0][chosen[ci, f]] for f in range(n_f)]
+        with_t = [tables[ci, f][chosen[ci, f]] for f in range(n_f)]
 
         def per_fold(tables: list[dict], seed_set: int) -> np.ndarray:
             return np.array([sim.gap(tables[f], seed_set, folds[f]) for f in range(n_f)])
@@ -308,16 +310,17 @@ def fit_final(sim: Simulator, table: dict, cand: fx.Candidate, units: Sequence[i
     if cand.learned:
         yield [(table, FIT, units)]
         opts, default = _options(sim, table, cand, units)
-        yield [(fx.apply(table, o), FIT, units) for o in opts]
-        j = np.array([sim.gap(fx.apply(table, o), FIT, units) for o in opts])
+        tables = [fx.apply(table, o) for o in opts]
+        yield [(t, FIT, units) for t in tables]
+        j = np.array([sim.gap(t, FIT, units) for t in tables])
         k = fit_index(j, default)
         return Fitted(opts[k], {"level": cand.learned[min(k, len(cand.learned) - 1)]})
     extended: set[str] = set()
     while True:
-        grid = cand.grid
-        yield [(fx.apply(table, o), s, units) for o in grid for s in (FIT, HELD)]
-        jf = np.array([sim.gap(fx.apply(table, o), FIT, units) for o in grid])
-        jh = np.array([sim.gap(fx.apply(table, o), HELD, units) for o in grid])
+        tables = [fx.apply(table, o) for o in cand.grid]
+        yield [(t, s, units) for t in tables for s in (FIT, HELD)]
+        jf = np.array([sim.gap(t, FIT, units) for t in tables])
+        jh = np.array([sim.gap(t, HELD, units) for t in tables])
         idx, info = identify(cand, jf, jh)
         grow = next(((a, side) for a, side in info["grid_edge"].items() if a not in extended),
                     None)

@@ -94,8 +94,8 @@ def gap_job(j: GapJob) -> list[UnitScore]:
 
 
 def table_key(table: dict[str, Any]) -> str:
-    """A profile table's identity: its JSON text, keys sorted (a selection looks tables up tens
-    of thousands of times; ``json`` writes them twenty times faster than TOML)."""
+    """A profile table's identity: its JSON text, keys sorted (``json`` writes them twenty times
+    faster than TOML)."""
     return json.dumps(table, sort_keys=True)
 
 
@@ -118,6 +118,9 @@ class Simulator:
         for u, unit in enumerate(self.units):
             self.run_units.setdefault(unit.run, []).append(u)
         self._scores: dict[tuple[str, int, int], UnitScore] = {}
+        # table object -> its key: a selection looks the same tables up thousands of times
+        # (the objects are held here, so an id is never reused while its key is kept)
+        self._keys: dict[int, tuple[dict[str, Any], str]] = {}
         self.keys = keys if keys is not None else share_runs(runs)
         # per-sky-bin counts are only read to learn sky masks, from logs with SNR
         self.bins = any(r.view.assess.get("gsv") and r.view.assess.get("cn0") for r in runs)
@@ -135,7 +138,7 @@ class Simulator:
         fitted), per-PRN counts with the held-out seeds (the tracking disagreement)."""
         todo: dict[tuple[str, int, int], tuple[dict[str, Any], set[int]]] = {}
         for table, seed_set, units in items:
-            key = table_key(table)
+            key = self.key(table)
             for u in units:
                 if (key, seed_set, u) not in self._scores:
                     todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
@@ -168,10 +171,19 @@ class Simulator:
         """The local worker processes jobs go to (1 on a Dask cluster: its size is its own)."""
         return 1 if self.dask else (self.jobs or os.cpu_count() or 1)
 
+    def key(self, table: dict[str, Any]) -> str:
+        """:func:`table_key` of a table, computed once per table object."""
+        hit = self._keys.get(id(table))
+        if hit is not None and hit[0] is table:
+            return hit[1]
+        key = table_key(table)
+        self._keys[id(table)] = (table, key)
+        return key
+
     def scores(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
                ) -> list[UnitScore]:
         """Some units' scores (after :meth:`request`)."""
-        key = table_key(table)  # (once for all the units: a selection asks thousands of times)
+        key = self.key(table)
         return [self._scores[(key, seed_set, u)] for u in units]
 
     def gap(self, table: dict[str, Any], seed_set: int, units: Sequence[int]) -> float:

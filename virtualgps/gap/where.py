@@ -204,13 +204,20 @@ def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top:
     """Quantile ``q`` of each row's masked values of (s, ...) data in [0, top], to ``step``
     (a histogram per row: ensembles of C/N0 or elevations hold ~10^5 values a seed).
 
+    x : data broadcastable to ``mask`` (e.g. (n, k) elevations for (s, n, k) masks)
+    mask : (s, ...) bool, the values that count
+
     Returns (s,) float, NaN for rows without a value (the lower of the two middle values'
     bins for an even count, like an order statistic, not interpolated)."""
-    s = x.shape[0]
+    s = mask.shape[0]
     nb = int(round(top / step)) + 1
-    b = _bins(x, step, nb)
+    b = np.broadcast_to(_bins(x, step, nb), mask.shape)
+    if mask.ndim == 3:  # only the satellites the mask holds (one PRN, a sky sector)
+        cols = mask.any(axis=(0, 1))
+        if not cols.all():
+            b, mask = b[..., cols], mask[..., cols]
     # one bincount over every row: masked-out values go to an extra bin past the last
-    idx = np.where(np.broadcast_to(mask, x.shape), b, nb).reshape(s, -1)
+    idx = np.where(mask, b, nb).reshape(s, -1)
     idx = idx + (np.arange(s, dtype=np.int32) * (nb + 1))[:, None]
     counts = np.bincount(idx.ravel(), minlength=s * (nb + 1)).reshape(s, nb + 1)[:, :nb]
     cum = np.cumsum(counts, axis=1)
@@ -220,19 +227,25 @@ def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top:
     return np.where(n > 0, np.minimum(pos, nb - 1) * step, np.nan)
 
 
-# The last (data, step, bins) per thread: a where table bins one array for every segment, PRN
-# and sky sector (and may be judged in a thread beside the selection's own scoring).
+# The last few (data, step, bins) per thread: a where table bins the same arrays (the real
+# log's, the ensemble's, the elevations) for every segment, PRN and sky sector, in turn (and
+# may be judged in a thread beside the selection's own scoring).
 _BINS = threading.local()
+_BINS_KEPT = 4
 
 
 def _bins(x: np.ndarray, step: float, nb: int) -> np.ndarray:
-    """int32 bin of each value of ``x`` (NaN: bin 0), cached for the thread's last array."""
-    last = getattr(_BINS, "last", None)
-    if last is not None and last[0] is x and last[1] == (step, nb):
-        return last[2]
+    """int32 bin of each value of ``x`` (NaN: bin 0), cached for the thread's last arrays."""
+    kept = getattr(_BINS, "kept", None)
+    if kept is None:
+        kept = _BINS.kept = []
+    for arr, key, b in kept:
+        if arr is x and key == (step, nb):
+            return b
     b = np.clip(np.rint(np.nan_to_num(np.asarray(x, dtype=float)) / step), 0, nb - 1)
     b = b.astype(np.int32)
-    _BINS.last = (x, (step, nb), b)
+    kept.insert(0, (x, (step, nb), b))
+    del kept[_BINS_KEPT:]
     return b
 
 
@@ -572,8 +585,7 @@ def segment_stats(
             put("cn0_median_dbhz", cn0(view.real), cn0(sims))
         if wanted("used_el_p05_deg") and view.assess.get("gsa") and sats is None:
             def used_el(o: Obs) -> np.ndarray:
-                el = np.broadcast_to(view.el_deg, o.used.shape)
-                return binned_quantile(el, o.used & sat_mask[None], 0.05, 0.1, 90.0)
+                return binned_quantile(view.el_deg, o.used & sat_mask[None], 0.05, 0.1, 90.0)
             put("used_el_p05_deg", used_el(view.real), used_el(sims))
     return SegmentStats(real, sim, pair)
 
