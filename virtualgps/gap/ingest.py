@@ -25,7 +25,6 @@ from virtualgps import geodesy
 from virtualgps.device.nmea import (
     NmeaEpochs,
     nmea_epochs_from_lines,
-    parse_sentence,
     read_text_lines,
 )
 from virtualgps.exceptions import ConfigError, InputFileError
@@ -117,26 +116,20 @@ def parse_truth(spec: str) -> Truth:
     return Truth("track", pose_logs.read_pose_log(path), source=spec)
 
 
-def _line_census(lines: list[str]) -> tuple[Counter, Counter]:
-    """Valid sentences per type, and lines skipped by reason (before grouping into epochs)."""
+def _census(tally: Counter) -> tuple[Counter, Counter]:
+    """Valid sentences per type, and lines skipped by reason, from the reader's tally of the
+    log's lines (:func:`virtualgps.device.nmea.reader.nmea_epochs_from_lines`)."""
     sentences: Counter = Counter()
     skipped: Counter = Counter()
-    for raw in lines:
-        if "$" not in raw:
-            if raw.strip():
-                skipped["not_nmea"] += 1
+    for what, n in tally.items():
+        if what in ("not_nmea", "truncated", "bad_checksum"):
+            skipped[what] += n
             continue
-        parsed = parse_sentence(raw)
-        if parsed is None:
-            star = raw.rfind("*")
-            skipped["truncated" if star < 0 or len(raw.rstrip()) - star < 3 else
-                    "bad_checksum"] += 1
-            continue
-        kind = parsed[0][-3:] if not parsed[0].startswith("P") else "proprietary"
+        kind = what[-3:] if not what.startswith("P") else "proprietary"
         if kind in KNOWN:
-            sentences[kind] += 1
+            sentences[kind] += n
         else:
-            skipped["not_used" if kind == "proprietary" else f"unknown_{kind}"] += 1
+            skipped["not_used" if kind == "proprietary" else f"unknown_{kind}"] += n
     return sentences, skipped
 
 
@@ -168,10 +161,11 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
     if not any(ln.strip() for ln in lines):
         raise InputFileError(path, "the log is empty")
-    sentences, skipped = _line_census(lines)
+    tally: Counter = Counter()
+    ep = nmea_epochs_from_lines(lines, path, tally=tally)
+    sentences, skipped = _census(tally)
     if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
         raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes")
-    ep = nmea_epochs_from_lines(lines, path)
     if ep.n_bad > sum(skipped.values()):
         skipped["malformed_fields"] = ep.n_bad - skipped["bad_checksum"] - skipped["truncated"]
     ok = np.isfinite(ep.t_unix_s)

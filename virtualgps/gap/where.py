@@ -567,8 +567,15 @@ def segment_stats(
                 pair["eq4_deg"] = rp
                 sim["eq4_deg"] = eq4(lat_s, lon_s, np.roll(lat_s, 1, 0), np.roll(lon_s, 1, 0))
     if view.assess.get("gsv") and sat_mask.any():
+        el_deg, real_obs = view.el_deg, view.real
+        cols = sat_mask.any(axis=0)
+        if not cols.all():  # only the satellites the segment holds (one PRN, a sky sector)
+            sat_mask, el_deg = sat_mask[:, cols], el_deg[:, cols]
+            real_obs, sims = (replace(o, tracked=o.tracked[..., cols],
+                                      cn0_dbhz=o.cn0_dbhz[..., cols], used=o.used[..., cols])
+                              for o in (real_obs, sims))
         if wanted("tracked_agreement") and view.assess.get("cn0"):
-            fr, w = tracked_fractions(view, view.real.tracked, sat_mask)
+            fr, w = tracked_fractions(view, real_obs.tracked, sat_mask)
             fs, _ = tracked_fractions(view, sims.tracked, sat_mask)
             rp = 1.0 - _disagreement(np.broadcast_to(fr, fs.shape), fs, w)
             if np.isfinite(rp).any():
@@ -578,15 +585,15 @@ def segment_stats(
         if wanted("tracked_share") and view.assess.get("cn0"):
             def share(o: Obs) -> np.ndarray:
                 return (o.tracked & sat_mask[None]).sum(axis=(1, 2)) / sat_mask.sum()
-            put("tracked_share", share(view.real), share(sims))
+            put("tracked_share", share(real_obs), share(sims))
         if wanted("cn0_median_dbhz") and view.assess.get("cn0"):
             def cn0(o: Obs) -> np.ndarray:  # (GSV SNR: whole dB-Hz)
                 return binned_quantile(o.cn0_dbhz, o.tracked & sat_mask[None], 0.5, 1.0, 99.0)
-            put("cn0_median_dbhz", cn0(view.real), cn0(sims))
+            put("cn0_median_dbhz", cn0(real_obs), cn0(sims))
         if wanted("used_el_p05_deg") and view.assess.get("gsa") and sats is None:
             def used_el(o: Obs) -> np.ndarray:
-                return binned_quantile(view.el_deg, o.used & sat_mask[None], 0.05, 0.1, 90.0)
-            put("used_el_p05_deg", used_el(view.real), used_el(sims))
+                return binned_quantile(el_deg, o.used & sat_mask[None], 0.05, 0.1, 90.0)
+            put("used_el_p05_deg", used_el(real_obs), used_el(sims))
     return SegmentStats(real, sim, pair)
 
 

@@ -10,6 +10,7 @@ One pass groups sentences into epochs (:func:`_read_epochs`); two views of it:
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import date
@@ -223,13 +224,18 @@ def _read_timed(e: _Epoch, kind: str, f: list[str], no: int) -> None:
             e.days = days
 
 
-def _read_epochs(lines: Iterable[str]) -> tuple[list[_Epoch], int]:
+def _read_epochs(lines: Iterable[str], tally: Counter | None = None
+                 ) -> tuple[list[_Epoch], int]:
     """Group NMEA lines into epochs: the one reading pass of every log reader here.
 
     A timed sentence (GGA, RMC, GLL, ZDA) with a time different from the current epoch's starts
     a new epoch; one without a time (a receiver just powered up) is skipped. GSA and GSV go to
     the current epoch (those before the first timed sentence are dropped). Text before ``$`` is
     ignored (:func:`parse_sentence`).
+
+    tally : where given, counts every line: each sentence by its address (``GPGGA``), and the
+    lines that hold none by why (``not_nmea``: text without ``$``; ``truncated``: no ``*HH``
+    at its end; ``bad_checksum``)
 
     Returns
     -------
@@ -241,12 +247,20 @@ def _read_epochs(lines: Iterable[str]) -> tuple[list[_Epoch], int]:
     n_bad = 0
     for no, raw in enumerate(lines, start=1):
         if "$" not in raw:
+            if tally is not None and raw.strip():
+                tally["not_nmea"] += 1
             continue
         parsed = parse_sentence(raw)
         if parsed is None:
             n_bad += 1
+            if tally is not None:
+                star = raw.rfind("*")
+                tally["truncated" if star < 0 or len(raw.rstrip()) - star < 3
+                      else "bad_checksum"] += 1
             continue
         addr, f = parsed
+        if tally is not None:
+            tally[addr] += 1
         kind = addr[-3:]
         try:
             if kind in _TIME_FIELD:
@@ -319,7 +333,8 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
 
 
 def nmea_epochs_from_lines(
-    lines: Iterable[str], source: object = "<nmea>", default_date: date | None = None
+    lines: Iterable[str], source: object = "<nmea>", default_date: date | None = None,
+    tally: Counter | None = None,
 ) -> NmeaEpochs:
     """Group NMEA lines into epochs and collect each epoch's fix and satellites.
 
@@ -339,6 +354,7 @@ def nmea_epochs_from_lines(
     lines : the text lines of the log
     source : name of the log, for error messages
     default_date : UTC date used when no RMC or ZDA gives one
+    tally : where given, every line is counted into it (see :func:`_read_epochs`)
 
     Returns
     -------
@@ -349,7 +365,7 @@ def nmea_epochs_from_lines(
     InputFileError
         when no RMC/ZDA gives a date and ``default_date`` is None.
     """
-    epochs, n_bad = _read_epochs(lines)
+    epochs, n_bad = _read_epochs(lines, tally)
     n_t = len(epochs)
     t_unix_s = _epoch_times_s(epochs, source, default_date)
 
