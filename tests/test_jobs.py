@@ -126,6 +126,9 @@ def dask_cluster():
 
 
 def test_dask_cluster_gives_the_same_ensembles(dask_cluster):
+    # (batches are shaped to the cluster's size: two single-threaded workers)
+    assert jobs.worker_count(dask_address=dask_cluster) == 2
+    assert jobs.worker_count(jobs=3) == 3
     items = _items()
     _same(jobs.map_jobs(simulate_job, items, jobs=1),
           jobs.map_jobs(simulate_job, items, dask_address=dask_cluster))

@@ -13,6 +13,7 @@ import atexit
 import multiprocessing
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
@@ -133,6 +134,14 @@ def _client(address: str) -> Any:
     return client
 
 
+def worker_count(jobs: int | None = None, dask_address: str | None = None) -> int:
+    """How many jobs run at once: the Dask cluster's worker threads, else ``jobs`` local
+    workers (None: one per core). Batches are shaped to several jobs per worker."""
+    if dask_address is not None:
+        return max(1, sum(_client(dask_address).nthreads().values()))
+    return jobs or os.cpu_count() or 1
+
+
 def map_jobs(
     fn: Callable[[T], R],
     items: Sequence[T],
@@ -184,12 +193,16 @@ def _map(fn: Callable[[T], R], items: list[T], jobs: int | None, dask_address: s
         if _CLIENT_VERSION.get(dask_address) != _SHARED_VERSION[0]:
             client.run(_install, dict(_SHARED))
             _CLIENT_VERSION[dask_address] = _SHARED_VERSION[0]
-        futures = client.map(fn, items, pure=False)
+        with warnings.catch_warnings():
+            # (a batch's items are sent with it, e.g. the report's figures' arrays: Dask warns
+            # about graphs over 10 MB, which here are a one-off payload, not a repeated one)
+            warnings.filterwarnings("ignore", message="Sending large graph")
+            futures = client.map(fn, items, pure=False)
         out = client.gather(futures)
         if progress is not None:
             progress(total, total)
         return list(out)
-    n = jobs or os.cpu_count() or 1
+    n = worker_count(jobs)
     if n <= 1 or total <= 1:
         out = []
         for i, item in enumerate(items):

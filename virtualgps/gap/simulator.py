@@ -15,7 +15,6 @@ into its held-out blocks), set 2 the outer test. Each set is ``fit_seeds`` seeds
 from __future__ import annotations
 
 import json
-import os
 import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -26,7 +25,7 @@ import numpy as np
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import Design
 from virtualgps.gap.ensemble import Ensemble, EnsembleJob, simulate_job, split_seeds
-from virtualgps.gap.jobs import map_jobs, share, shared
+from virtualgps.gap.jobs import map_jobs, share, shared, worker_count
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.where import (
     SCORE_METRICS,
@@ -168,8 +167,8 @@ class Simulator:
                 self._scores[(key, seed_set, u)] = sc
 
     def workers(self) -> int:
-        """The local worker processes jobs go to (1 on a Dask cluster: its size is its own)."""
-        return 1 if self.dask else (self.jobs or os.cpu_count() or 1)
+        """The workers jobs go to (local processes, or the Dask cluster's threads)."""
+        return worker_count(self.jobs, self.dask)
 
     def key(self, table: dict[str, Any]) -> str:
         """:func:`table_key` of a table, computed once per table object."""
@@ -218,7 +217,7 @@ def ensembles(runs: list[Run], table: dict[str, Any], seeds: Sequence[int], jobs
     Returns {run index: Ensemble} and the simulated epochs
     """
     prof = fx.build(table, source)
-    n_jobs = jobs or os.cpu_count() or 1
+    n_jobs = worker_count(jobs, dask)
     per_run = max(1, (4 * n_jobs) // max(1, len(runs)))
     items, owner = [], []
     for i, r in enumerate(runs):
