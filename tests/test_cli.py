@@ -19,6 +19,7 @@ from pynmeagps import NMEAReader
 
 from virtualgps.cli import main
 from virtualgps.run import config, replay
+from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
 
 T0 = 1490712768.0  # 2017-03-28T14:52:48Z, the 2017-03-28 Magdeburg waypoint logs
 
@@ -228,7 +229,8 @@ def test_sky_json_lists_states_and_plot_draws(tmp_path, capsys):
     states = {r["state"] for r in rows}
     assert rows and states <= {"visible", "blocked", "nlos", "attenuated", "below_mask"}
     for r in rows:
-        assert set(r) == {"prn", "az_deg", "el_deg", "state", "cn0_dbhz"}
+        assert set(r) == {"system", "prn", "az_deg", "el_deg", "state", "cn0_dbhz"}
+        assert r["system"] == "GPS" and 1 <= r["prn"] <= 32
         assert 0 <= r["el_deg"] <= 90 and 0 <= r["az_deg"] < 360
         # a signal arrives directly, off a facade or through foliage; a blocked one has none
         assert (r["cn0_dbhz"] is not None) == (r["state"] in ("visible", "nlos", "attenuated"))
@@ -236,6 +238,30 @@ def test_sky_json_lists_states_and_plot_draws(tmp_path, capsys):
     # between the campus buildings: some lines of sight are blocked, received off a facade
     assert "nlos" in states
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sky_lists_every_system_of_its_tle_sets_with_nmea_ids(tmp_path, capsys):
+    sets = [str(BUNDLED_EPHEMERIS_DIR / f"{g}-2017-03-28.tle")
+            for g in ("gps-ops", "glo-ops", "galileo")]
+    args = ["sky", "--scene", "none", "--lla", "52.14,11.64,100", "--time",
+            "2017-03-28T14:52:48Z", "--json"] + [f"--tle={p}" for p in sets]
+    assert main(args) == 0
+    rows = json.loads(capsys.readouterr().out)
+    by = {}
+    for r in rows:
+        by.setdefault(r["system"], []).append(r["prn"])
+    assert set(by) == {"GPS", "GLONASS", "Galileo"}
+    assert all(1 <= p <= 32 for p in by["GPS"]) and all(65 <= p <= 88 for p in by["GLONASS"])
+    assert all(1 <= p <= 36 for p in by["Galileo"])  # as GAGSV writes them (NMEA 4.11)
+    assert main(args + ["--systems", "GLONASS"]) == 0
+    assert {r["system"] for r in json.loads(capsys.readouterr().out)} == {"GLONASS"}
+    assert main(args + ["--systems", "Glonas"]) == 2
+    assert "--systems: unknown satellite system 'Glonas'" in capsys.readouterr().err
+    # the receivers track GPS: a GLONASS set alone is refused with a reason
+    poses = write_walk(tmp_path / "walk.jsonl", n=10)
+    assert main(["replay", str(poses), "--out", str(tmp_path / "o.nmea"), "--tle",
+                 sets[1]]) == 2
+    assert "holds no GPS satellite (GLONASS: 24)" in capsys.readouterr().err
 
 
 def test_sky_open_sky_blocks_nothing(capsys):

@@ -1,5 +1,5 @@
 """Rebuild tests/data/skyfield_azel.csv: skyfield's azimuth/elevation of every satellite of each
-bundled TLE set, at a table of sites and times, as an independent reference for
+bundled TLE set (GPS, and the GLONASS and Galileo sets of 2017-03-28), at a table of sites and times, as an independent reference for
 virtualgps.sky.ephemeris + virtualgps.geodesy.
 
 Usage: python tools/make_skyfield_refs.py [--out tests/data/skyfield_azel.csv]
@@ -27,7 +27,8 @@ import numpy as np
 from skyfield.api import EarthSatellite, load, wgs84
 
 REPO = Path(__file__).resolve().parents[1]
-TLE_FILES = ["gps-ops-2017-03-26.tle", "gps-ops-2017-03-28.tle", "gps-ops-2020-05-14T22Z.tle"]
+TLE_FILES = ["gps-ops-2017-03-26.tle", "gps-ops-2017-03-28.tle", "gps-ops-2020-05-14T22Z.tle",
+             "glo-ops-2017-03-28.tle", "galileo-2017-03-28.tle"]
 
 # (label, lat_deg, lon_deg, alt_hae_m): the poles, the equator on both sides of the antimeridian,
 # the cities of the real logs, and one high site.
@@ -53,17 +54,19 @@ OFFSETS_S = [
 # Rows are kept down to this elevation (the tests compare satellites above -5 deg).
 MIN_EL_DEG = -10.0
 
-_PRN = re.compile(r"PRN\s*0*(\d+)", re.IGNORECASE)
+_PRN = re.compile(r"PRN\s*0*(\d+)\)", re.IGNORECASE)
 
 
-def read_three_line(path: Path) -> list[tuple[int, str, str]]:
-    """(prn, line1, line2) of a 3-line TLE file whose names carry '(PRN nn)'."""
+def read_three_line(path: Path) -> list[tuple[int, int, str, str]]:
+    """(prn, norad, line1, line2) of a 3-line TLE file; prn 0 where the name carries no GPS
+    '(PRN nn)' (GLONASS, Galileo: the tests find those satellites by NORAD number, so the
+    reference does not depend on our slot table)."""
     lines = [s.rstrip() for s in path.read_text(encoding="ascii").splitlines() if s.strip()]
     out = []
     for k in range(0, len(lines), 3):
         name, l1, l2 = lines[k : k + 3]
-        prn = int(_PRN.search(name).group(1))
-        out.append((prn, l1, l2))
+        m = _PRN.search(name)
+        out.append((int(m.group(1)) if m else 0, int(l1[2:7]), l1, l2))
     return out
 
 
@@ -75,25 +78,28 @@ def main() -> None:
     rows = []
     for tle_name in TLE_FILES:
         sats = read_three_line(REPO / "ephemeris" / tle_name)
-        sky_sats = [(prn, EarthSatellite(l1, l2, str(prn), ts)) for prn, l1, l2 in sats]
+        sky_sats = [((prn, norad), EarthSatellite(l1, l2, str(norad), ts))
+                    for prn, norad, l1, l2 in sats]
         epochs = np.array([s.epoch.utc_datetime().timestamp() for _, s in sky_sats])
         center_unix_s = float(np.median(epochs))
         t_unix_s = [round(center_unix_s + off, 3) for off in OFFSETS_S]
         times = ts.from_datetimes([dt.datetime.fromtimestamp(t, dt.UTC) for t in t_unix_s])
         for _label, lat, lon, alt in SITES:
             site = wgs84.latlon(lat, lon, elevation_m=alt)
-            for prn, sat in sky_sats:
+            for (prn, norad), sat in sky_sats:
                 alt_angle, az_angle, _ = (sat - site).at(times).altaz()
                 for t, az, el in zip(t_unix_s, az_angle.degrees, alt_angle.degrees, strict=True):
                     if el >= MIN_EL_DEG:
                         rows.append(
-                            (tle_name, lat, lon, alt, f"{t:.3f}", prn, f"{az:.6f}", f"{el:.6f}")
+                            (tle_name, lat, lon, alt, f"{t:.3f}", prn, norad, f"{az:.6f}",
+                             f"{el:.6f}")
                         )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(
-            ["tle_file", "lat_deg", "lon_deg", "alt_m", "t_unix_s", "prn", "az_deg", "el_deg"]
+            ["tle_file", "lat_deg", "lon_deg", "alt_m", "t_unix_s", "prn", "norad", "az_deg",
+             "el_deg"]
         )
         w.writerows(rows)
     print(f"wrote {len(rows)} rows to {args.out}")

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps import __version__
-from virtualgps.exceptions import VirtualGPSError
+from virtualgps.exceptions import ConfigError, VirtualGPSError
 
 log = logging.getLogger("virtualgps")
 
@@ -47,9 +47,11 @@ def _common(p: argparse.ArgumentParser, start_time_help: str | None) -> None:
     )
     p.add_argument(
         "--tle",
+        action="append",
         help="TLE file, RINEX 2/3 GPS navigation file (broadcast orbits) or satellite lookup "
         "table (default: of the scene's, the bundled and the fetched TLE sets, the one whose "
-        "epoch lies nearest the start time)",
+        "epoch lies nearest the start time); repeatable, one TLE file per group (gps-ops, "
+        "glo-ops, galileo, ...); the receivers track the GPS satellites of them",
     )
     p.add_argument("--rate", type=float, help="output rate in Hz (default: the profile's, 1 Hz)")
     if start_time_help is not None:  # (sky has --time instead: one moment, taken literally)
@@ -117,6 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
     sky.add_argument("--time", help="UTC time, ISO 8601 (default: now); no sky-time mapping")
     sky.add_argument("--json", action="store_true", help="print a JSON list")
     sky.add_argument("--plot", help="draw a skyplot to this PNG file")
+    sky.add_argument("--systems", help="the systems listed, comma-separated (GPS, GLONASS, "
+                     "Galileo, BeiDou, QZSS, SBAS; default: every system of the --tle sets)")
 
     gap = sub.add_parser(
         "gap",
@@ -407,11 +411,17 @@ def cmd_sky(args: argparse.Namespace) -> int:
     from virtualgps import geodesy
     from virtualgps.receiver.skyview import compute_sky
     from virtualgps.run import config
+    from virtualgps.sky import systems
 
+    try:
+        kept = ("".join(systems.system_named(n).letter for n in args.systems.split(","))
+                if args.systems else None)
+    except ValueError as exc:
+        raise ConfigError(f"--systems: {exc}") from None
     cfg = config.resolve(_flags(args))
     scene, georef, scene_tle = config.load_scene_for(cfg)
     t = config.parse_time(args.time) if args.time else time.time()
-    ephemeris, _ = config.load_ephemeris(cfg, scene_tle, t)
+    ephemeris, _ = config.load_ephemeris(cfg, scene_tle, t, systems_kept=kept)
     if args.lla:
         lla = np.array(config.parse_origin(args.lla, "--lla"))
         if georef is None:
@@ -432,10 +442,11 @@ def cmd_sky(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rows, indent=1))
     else:
-        print(f"{'prn':>4} {'az_deg':>7} {'el_deg':>7}  state")
+        print(f"{'system':<7} {'prn':>4} {'az_deg':>7} {'el_deg':>7}  state")
         for r in rows:
             print(
-                f"{r['prn']:>4} {r['az_deg']:7.2f} {r['el_deg']:7.2f}  {r['state']}"
+                f"{r['system']:<7} {r['prn']:>4} {r['az_deg']:7.2f} {r['el_deg']:7.2f}  "
+                f"{r['state']}"
                 + (f"  {r['cn0_dbhz']:.1f} dB-Hz" if r.get("cn0_dbhz") is not None else "")
             )
     if args.plot:
@@ -449,7 +460,10 @@ def cmd_sky(args: argparse.Namespace) -> int:
 
 
 def sky_rows(rx, sky) -> list[dict[str, Any]]:
-    """One row per satellite above the horizon: prn, az_deg, el_deg, state, cn0_dbhz.
+    """One row per satellite above the horizon: system, prn, az_deg, el_deg, state, cn0_dbhz.
+
+    ``prn`` is the satellite's ID as its system's NMEA GSV writes it (GPS 1-32, GLONASS 65-96,
+    Galileo 1-36, BeiDou 1-63, QZSS 1-10, SBAS 33-64), ``system`` the system's name.
 
     States: ``below_mask`` (above the horizon, below the mask), ``blocked`` (line of sight
     hits an occluder or a blocking bin of the profile's ``[sky_mask]``, no signal), ``nlos``
@@ -458,10 +472,12 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
     arriving signal's C/N0 without fading (null where none).
     """
     from virtualgps.receiver.core import expected_cn0_dbhz
+    from virtualgps.sky import systems
 
     cn0 = expected_cn0_dbhz(rx.profile, sky)
     rows = []
     for j, prn in enumerate(np.asarray(rx.ephemeris.prn).tolist()):
+        system = systems.system_of(prn)
         el = float(sky.el_deg[0, j])
         if not np.isfinite(el) or el < 0.0:
             continue
@@ -476,7 +492,9 @@ def sky_rows(rx, sky) -> list[dict[str, Any]]:
         else:
             state = "visible"
         c = float(cn0[0, j])
-        rows.append({"prn": int(prn), "az_deg": round(float(sky.az_deg[0, j]), 3),
+        rows.append({"system": system.name if system is not None else "unknown",
+                     "prn": int(prn) - (system.nmea_offset if system is not None else 0),
+                     "az_deg": round(float(sky.az_deg[0, j]), 3),
                      "el_deg": round(el, 3), "state": state,
                      "cn0_dbhz": round(c, 1) if np.isfinite(c) and state != "below_mask"
                      else None})

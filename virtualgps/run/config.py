@@ -39,7 +39,8 @@ class RunConfig:
 
     scene : scene folder / scene.toml path, "none" for open sky, or None for the default scene
     profile : the receiver profile (with config-file overrides applied)
-    tle : TLE or lookup-table file, or None for the scene's / the newest bundled set
+    tle : TLE, RINEX or lookup-table file (several: TLE sets, one per group), or None for the
+        set chosen by time (:func:`virtualgps.sky.skytime.choose_tle_set`)
     origin : (lat_deg, lon_deg, alt_hae_m) overriding the scene's georeference, or None
     seed : random seed
     start_time_unix_s : simulated UTC start, or None (wall clock)
@@ -47,11 +48,19 @@ class RunConfig:
 
     profile: Profile
     scene: str | None = None
-    tle: str | None = None
+    tle: tuple[str, ...] | None = None
     origin: tuple[float, float, float] | None = None
     seed: int = 0
     start_time_unix_s: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _tle_files(value: Any) -> tuple[str, ...] | None:
+    """``--tle`` (a list: repeatable) or the config file's ``tle`` (a path or a list)."""
+    if value is None:
+        return None
+    files = [value] if isinstance(value, str | Path) else list(value)
+    return tuple(str(f) for f in files) or None
 
 
 def parse_origin(text: str, what: str = "origin") -> tuple[float, float, float]:
@@ -145,7 +154,7 @@ def resolve(flags: dict[str, Any]) -> RunConfig:
     return RunConfig(
         profile=profile,
         scene=str(pick("scene")) if pick("scene") is not None else None,
-        tle=str(pick("tle")) if pick("tle") is not None else None,
+        tle=_tle_files(pick("tle")),
         origin=origin,
         seed=seed if seed is not None else 0,
         start_time_unix_s=parse_time(start) if isinstance(start, str) else start,
@@ -198,7 +207,8 @@ def load_scene_for(cfg: RunConfig):  # -> (Scene | None, Georef | None, default 
     return scene, georef, scene_tle
 
 
-def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float | None = None):
+def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float | None = None,
+                   systems_kept: str | None = "G"):
     """Load the ephemeris :func:`virtualgps.sky.skytime.choose_tle_set` picks for a run starting at
     ``t_start_unix_s`` (``--tle``, else the set whose epoch lies nearest among the scene's, the
     bundled and the fetched sets), and log the one line that says which and why.
@@ -207,17 +217,26 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
     ----------
     scene_tle : the scene's set, or None
     t_start_unix_s : the run's start, UTC seconds (None: now, a live run on the wall clock)
+    systems_kept : RINEX letters of the systems kept (default GPS: what receivers track;
+        None: every system, as ``sky`` lists them)
 
     Returns
     -------
     ephemeris : Constellation, BroadcastEphemeris or LookupTable
     path : the file it came from
     """
-    path, line = choose_tle_set(cfg.tle, scene_tle, t_start_unix_s)
+    if cfg.tle is not None and len(cfg.tle) > 1:  # one TLE set per group
+        paths = [Path(p) for p in cfg.tle]
+        for p in paths:
+            if not p.exists():
+                raise ConfigError(f"TLE file {p} not found (give --tle PATH to a TLE file)")
+        log.info("ephemeris: --tle %s", ", ".join(cfg.tle))
+        return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]
+    path, line = choose_tle_set(cfg.tle[0] if cfg.tle else None, scene_tle, t_start_unix_s)
     if not path.exists():
         raise ConfigError(f"TLE file {path} not found (give --tle PATH to a TLE file)")
     log.info("%s", line)
-    return eph.load_ephemeris_file(path), path
+    return eph.load_ephemeris_file(path, systems_kept), path
 
 
 def make_receiver(

@@ -33,6 +33,7 @@ Accepted approximations (with their size)
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from dataclasses import dataclass
@@ -47,6 +48,7 @@ from virtualgps.bundled import bundled_dir
 from virtualgps.constants import DAY_S, UNIX_EPOCH_JD
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.geodesy import teme_to_ecef, unix_to_jd
+from virtualgps.sky import systems
 from virtualgps.sky.lookup import (
     LookupTable,
     is_lookup_table,
@@ -54,6 +56,7 @@ from virtualgps.sky.lookup import (
 )
 
 F64 = NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 # The pinned TLE sets: the repository's ephemeris/ folder, packaged into wheels.
 BUNDLED_EPHEMERIS_DIR = bundled_dir("ephemeris")
@@ -112,7 +115,6 @@ _LINE2_RANGES = (
     ("mean motion (rev/day)", 53, 63, 1e-6, 20.0),
 )
 
-_PRN_IN_NAME = re.compile(r"\bPRN\s*0*(\d{1,3})\b", re.IGNORECASE)
 _TABLE_PRN = re.compile(r"^G0*(\d{1,3})$", re.IGNORECASE)
 _TABLE_NORAD = re.compile(r"^(\d{1,5})[A-Z]?$", re.IGNORECASE)
 
@@ -404,31 +406,46 @@ class Constellation:
         return self.sat_state_ecef(t_unix_s, with_velocity=False)[0]
 
 
-def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constellation:
-    """Read a 2-line or 3-line TLE file into a :class:`Constellation`.
+def _place_glonass(entries: list[_TleEntry], norad: NDArray[np.int64], epoch_unix_s: F64,
+                   prn: NDArray[np.int64], which: list[int], by_name: bool = True) -> list[int]:
+    """Number GLONASS entries 64 + slot by the bundled slot table at each one's TLE epoch (in
+    ``prn``, in place), by the GLONASS number in their names, else by NORAD number; returns
+    those it cannot place."""
+    if not which:
+        return []
+    from virtualgps.sky import glonass_slots
 
-    Blank lines, trailing blanks and CRLF line ends are accepted. Each satellite's PRN comes
-    from, in order: ``prn_table`` when given (a table for the file's date is the authority,
-    as PRNs are reassigned between satellites over the years), the name (``... (PRN 13)``),
-    and otherwise a NORAD -> PRN table found beside the file (``*NORAD-PRN*``, else ``*.t``).
-    A table found beside the file must match the file's date: it is not checked.
-    When two entries have the same PRN, the one with the newest epoch is kept.
+    table = glonass_slots.read_slot_table()
+    unplaced = []
+    for i in which:
+        t = float(epoch_unix_s[i])
+        slot = glonass_slots.slot_at(table, t, systems.glonass_number_from_name(
+            entries[i].name)) if by_name else None
+        if slot is None:
+            slot = glonass_slots.slot_at(table, t, norad=int(norad[i]))
+        if slot is None:
+            unplaced.append(i)
+        else:
+            prn[i] = systems.GLONASS.offset + slot
+    return unplaced
 
-    Parameters
-    ----------
-    path : str or Path, the TLE file
-    prn_table : str or Path, optional, a NORAD -> PRN table (see :func:`read_prn_table`)
 
-    Returns
-    -------
-    constellation : Constellation, satellites sorted by PRN
+def _check_systems(path: str | Path, prn: NDArray[np.int64], kept: str) -> None:
+    """ConfigError when a TLE set holds no satellite of the systems kept (e.g. a GLONASS set
+    given to a GPS receiver), naming what it holds."""
+    have = systems.letters(prn[prn >= 0])
+    if not np.isin(have, list(kept) + (["?"] if "G" in kept else [])).any():
+        held = ", ".join(f"{systems.system_named(x).name}: {int((have == x).sum())}"
+                         for x in sorted(set(have.tolist())) if x != "?")
+        wanted = ", ".join(systems.system_named(x).name for x in kept)
+        raise ConfigError(f"{path}: holds no {wanted} satellite ({held or 'none placed'}); "
+                          f"give a set of the systems the receiver tracks")
 
-    Raises
-    ------
-    InputFileError
-        naming the file and line, if a line breaks the TLE column layout or its checksum, if a
-        satellite has no PRN, or if the file holds no satellite.
-    """
+
+def _read_tle_file(path: Path, prn_table: str | Path | None
+                   ) -> tuple[list[str], NDArray[np.int64], NDArray[np.int64], F64, list[Satrec]]:
+    """The satellites of one TLE file: names, NORAD numbers, numbers here (PRNs, GLONASS
+    64 + slot, ...), epochs (UTC s) and SGP4 records (see :func:`load_tle`)."""
     path = Path(path)
     entries = _split_tle_entries(path, _read_text(path))
     if not entries:
@@ -460,21 +477,39 @@ def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constella
         satrecs.append(sat)
 
     norad = np.array([s.satnum for s in satrecs], dtype=np.int64)
+    epoch = np.array([((s.jdsatepoch - UNIX_EPOCH_JD) + s.jdsatepochF) * DAY_S for s in satrecs])
     prn = np.full(len(entries), -1, dtype=np.int64)
+    glonass: list[int] = []  # GLONASS satellites: placed by the slot table at their epoch
     for i, entry in enumerate(entries):
         if int(norad[i]) in table:
             prn[i] = table[int(norad[i])]
             continue
-        m = _PRN_IN_NAME.search(entry.name)
-        if m is not None:
-            prn[i] = int(m.group(1))
-    if np.any(prn < 0) and prn_table is None:
+        number = systems.number_from_name(entry.name)
+        if number is not None:
+            prn[i] = number
+        elif systems.glonass_number_from_name(entry.name) is not None:
+            glonass.append(i)
+    unplaced = _place_glonass(entries, norad, epoch, prn, glonass)
+    prn[unplaced] = -2  # (named GLONASS satellites the slot table cannot place)
+    if np.any(prn == -1) and prn_table is None:
         table_source = _find_prn_table(path.parent)
         if table_source is not None:
             table = read_prn_table(table_source)
-            for i in np.flatnonzero(prn < 0):
+            for i in np.flatnonzero(prn == -1):
                 prn[i] = table.get(int(norad[i]), -1)
-    missing = np.flatnonzero(prn < 0)
+    # a 2-line GLONASS set: by NORAD number in the slot table (and what it cannot place there,
+    # in a set the table shows to be GLONASS, is a GLONASS satellite in no known slot)
+    left = _place_glonass(entries, norad, epoch, prn,
+                          [int(i) for i in np.flatnonzero(prn == -1)], by_name=False)
+    if left and np.any(prn >= systems.GLONASS.first) and np.all(
+            (prn < 0) | (systems.letters(prn) == "R")):
+        unplaced += left
+        prn[left] = -2
+    if unplaced:
+        log.warning("%s: %d GLONASS satellite(s) in no orbital slot at their TLE epoch by the "
+                    "slot table (%s): left out", path.name, len(unplaced),
+                    ", ".join(entries[i].name or f"NORAD {norad[i]}" for i in unplaced))
+    missing = np.flatnonzero(prn == -1)
     if missing.size:
         i = int(missing[0])
         where = f"table {table_source}" if table_source is not None else "no NORAD-PRN table"
@@ -485,19 +520,77 @@ def load_tle(path: str | Path, prn_table: str | Path | None = None) -> Constella
             line=entries[i].line_no,
         )
 
-    epoch = np.array([((s.jdsatepoch - UNIX_EPOCH_JD) + s.jdsatepochF) * DAY_S for s in satrecs])
+    keep = np.flatnonzero(prn >= 0)
+    return ([entries[i].name for i in keep], norad[keep], prn[keep], epoch[keep],
+            [satrecs[i] for i in keep])
+
+
+def load_tle(path: str | Path, prn_table: str | Path | None = None,
+             systems_kept: str | None = None) -> Constellation:
+    """Read a 2-line or 3-line TLE file into a :class:`Constellation`.
+
+    The file may hold any system's satellites. GPS, Galileo, BeiDou, QZSS and SBAS satellites
+    are numbered from the PRN in their names (``(PRN 13)``, ``(PRN E11)``, ``(C19)``; see
+    :mod:`virtualgps.sky.systems`); GLONASS satellites, whose names carry their GLONASS number
+    (``COSMOS 2456 (730)``), by the orbital slot the slot table gives for their TLE epoch
+    (:mod:`virtualgps.sky.glonass_slots`; one warning names those it cannot place, which are
+    left out).
+
+    Blank lines, trailing blanks and CRLF line ends are accepted. Each satellite's PRN comes
+    from, in order: ``prn_table`` when given (a table for the file's date is the authority,
+    as PRNs are reassigned between satellites over the years), the name (``... (PRN 13)``),
+    and otherwise a NORAD -> PRN table found beside the file (``*NORAD-PRN*``, else ``*.t``).
+    A table found beside the file must match the file's date: it is not checked.
+    When two entries have the same PRN, the one with the newest epoch is kept.
+
+    Parameters
+    ----------
+    path : str or Path, the TLE file
+    prn_table : str or Path, optional, a NORAD -> PRN table (see :func:`read_prn_table`)
+    systems_kept : RINEX letters of the systems to keep (e.g. ``"G"``, ``"GRE"``); None: all
+        (ConfigError when the file holds none of them)
+
+    Returns
+    -------
+    constellation : Constellation, satellites sorted by PRN
+
+    Raises
+    ------
+    InputFileError
+        naming the file and line, if a line breaks the TLE column layout or its checksum, if a
+        satellite has no PRN, or if the file holds no satellite.
+    """
+    return load_tle_sets([path], prn_table, systems_kept)
+
+
+def load_tle_sets(paths: list[str | Path], prn_table: str | Path | None = None,
+                  systems_kept: str | None = None) -> Constellation:
+    """Read several TLE files (e.g. one per group: gps-ops, glo-ops, galileo) into one
+    :class:`Constellation` (see :func:`load_tle`; a satellite in several files keeps its
+    newest epoch)."""
+    parts = [_read_tle_file(Path(p), prn_table) for p in paths]
+    names = [n for part in parts for n in part[0]]
+    norad, prn, epoch = (np.concatenate([part[k] for part in parts]) for k in (1, 2, 3))
+    satrecs = [r for part in parts for r in part[4]]
+    source = ", ".join(str(p) for p in paths)
+    if systems_kept is not None:
+        _check_systems(source, prn, systems_kept)
+        # (a PRN of no known system, e.g. a test's "(PRN 99)", is taken as GPS's, as before)
+        kept = list(systems_kept) + (["?"] if "G" in systems_kept else [])
+        prn = np.where(np.isin(systems.letters(prn), kept), prn, -2)
     # Keep one entry per PRN, the newest epoch: sort by (PRN, -epoch), take the first of each.
     order = np.lexsort((-epoch, prn))
+    order = order[prn[order] >= 0]
     first = np.ones(order.size, dtype=bool)
     first[1:] = prn[order][1:] != prn[order][:-1]
     keep = order[first]
     return Constellation(
         prn=prn[keep],
-        name=tuple(entries[i].name for i in keep),
+        name=tuple(names[i] for i in keep),
         norad=norad[keep],
         epoch_unix_s=epoch[keep],
         satrec_array=SatrecArray([satrecs[i] for i in keep]),
-        source=str(path),
+        source=source,
     )
 
 
@@ -615,10 +708,17 @@ def sidereal_shift_s(
     return float(round(offset_s / repeat_s)) * float(repeat_s)
 
 
-def load_ephemeris_file(path: str | Path):
+def load_ephemeris_file(path: str | Path, systems_kept: str | None = "G"):
     """Satellites from any ephemeris file ``--tle`` accepts: a lookup table
     (:func:`virtualgps.sky.lookup.write_lookup_table`), a RINEX 2/3 GPS navigation file (broadcast
     orbits, :mod:`virtualgps.sky.broadcast`) or a TLE set.
+
+    Parameters
+    ----------
+    path : the file
+    systems_kept : RINEX letters of the systems a TLE set keeps (default ``"G"``: the receivers
+        track GPS; None: every system, as ``sky`` lists them); lookup tables and RINEX files
+        hold GPS only
 
     Returns
     -------
@@ -631,7 +731,7 @@ def load_ephemeris_file(path: str | Path):
         return read_lookup_table(path)
     if broadcast.is_rinex_nav(path):
         return broadcast.read_rinex_nav(path)
-    return load_tle(path)
+    return load_tle(path, systems_kept=systems_kept)
 
 
 __all__ = [

@@ -1,7 +1,8 @@
 """Which TLE set a run's sky comes from: one rule for ``run``, ``replay``, ``sky`` and ``gap``.
 
 ``--tle`` wins. Otherwise the set whose epoch centre lies nearest the run's start, among the
-scene's set (``tle`` in ``scene.toml``), the bundled sets (``ephemeris/*.tle``) and the sets
+scene's set (``tle`` in ``scene.toml``), the bundled GPS sets (``ephemeris/gps-ops-*.tle``; the
+GLONASS and Galileo sets beside them are given with ``--tle``) and the sets
 ``virtualgps ephemeris fetch`` cached (:mod:`virtualgps.sky.tlecache`): a simulated or replayed day
 gets its own day's sky where one is at hand, and the sky-time shift
 (:func:`virtualgps.sky.ephemeris.sidereal_shift_s`) covers the rest. A receiver log and its
@@ -76,7 +77,7 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
         candidates.append((c.path, c.epoch_center_unix_s,
                            f"a TLE set fetched {age_d:.1f} days ago from {c.url}"))
     candidates += [(p, None, "a bundled set")
-                   for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob("*.tle"))]
+                   for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob("gps-ops-*.tle"))]
     best: tuple[Path, float, str] | None = None
     seen: set[Path] = set()
     for path, epoch, why in candidates:
