@@ -1,4 +1,4 @@
-"""The gap tool on the real withheld cases of issue #8 (../shared/data), with their checks.
+"""The gap tool on the real cases of ../shared/data, with the checks each must pass.
 
     python tools/gap_cases.py [--data ../shared/data] [--out gap-cases] [--seeds 50]
                               [--jobs N] [--case mt3339|magdeburg|gsdc ...]

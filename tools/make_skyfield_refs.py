@@ -1,6 +1,6 @@
 """Rebuild tests/data/skyfield_azel.csv: skyfield's azimuth/elevation of every satellite of each
-bundled TLE set (GPS, and the GLONASS and Galileo sets of 2017-03-28), at a table of sites and times, as an independent reference for
-virtualgps.sky.ephemeris + virtualgps.geodesy.
+bundled TLE set (GPS, and the GLONASS and Galileo sets of 2017-03-28), at a table of sites and
+times, as an independent reference for virtualgps.sky.ephemeris + virtualgps.geodesy.
 
 Usage: python tools/make_skyfield_refs.py [--out tests/data/skyfield_azel.csv]
 

@@ -82,8 +82,8 @@ class Statistic:
 
 def _bin_rows() -> tuple[Statistic, ...]:
     """Per elevation bin, the median C/N0 within 3 dB and the share tracked within 15 points
-    (issue #11: pooled quartiles hid a wrong shape; a 5 dB shift of the zenith C/N0 moved the
-    pooled median by 2 dB)."""
+    (pooled quartiles hid a wrong shape: a 5 dB shift of the zenith C/N0 moved the pooled
+    median by only 2 dB)."""
     rows = []
     for lo, hi in ELEVATION_BINS_DEG:
         rows.append(Statistic(f"cn0_el{lo}_{hi}_median_dbhz", "mt3339_static",
@@ -94,8 +94,8 @@ def _bin_rows() -> tuple[Statistic, ...]:
     return tuple(rows)
 
 
-# The statistics the profile is calibrated to reproduce (issue #3: CEP50, R95, the error
-# autocorrelation time, satellites used, the HDOP distribution; issue #11: C/N0 and tracking
+# The statistics the profile is calibrated to reproduce (CEP50, R95, the error
+# autocorrelation time, satellites used, the HDOP distribution; C/N0 and tracking
 # per elevation bin, satellites used and the VDOP of the used sets within 10 %). The MT3339
 # rows are simulated with the log's site (the obstruction ``virtualgps gap`` learned,
 # ``tools/mt3339-site.toml``) on top of the profile's open-sky antenna.

@@ -3,8 +3,8 @@ sky: RMS of the actual east/north/up errors over the RMS of the reported sigmas.
 
     python tools/sigma_check.py [--profile holux-m1000] [--seeds 5] [--epochs 20000]
 
-A ratio of 1 is a receiver whose GST a robot's filter can trust; the issue #11 review found
-1.6-1.8 for ``holux-m1000`` while its sigma knew only the UERE budget.
+A ratio of 1 is a receiver whose GST a robot's filter can trust; a review found 1.6-1.8 for
+``holux-m1000`` while its sigma knew only the UERE budget.
 """
 
 from __future__ import annotations
