@@ -117,6 +117,16 @@ def test_a_two_line_glonass_set_is_placed_by_norad_number(tmp_path):
     assert load_tle(f).prn.tolist() == list(range(65, 89))
 
 
+def test_a_set_of_satellites_in_no_known_slot_says_so(tmp_path):
+    lines = (BUNDLED_EPHEMERIS_DIR / "glo-ops-2017-03-28.tle").read_text().splitlines()
+    spares = [ln for k in range(0, len(lines), 3) if "(714)" in lines[k] or "(725)" in lines[k]
+              for ln in lines[k:k + 3]]
+    f = tmp_path / "spares.tle"
+    f.write_text("\n".join(spares) + "\n")
+    with pytest.raises(InputFileError, match="no satellite could be numbered"):
+        load_tle(f)
+
+
 def test_a_receiver_given_only_another_systems_set_says_so():
     with pytest.raises(ConfigError, match=r"holds no GPS satellite \(Galileo: 18\)"):
         load_ephemeris_file(BUNDLED_EPHEMERIS_DIR / "galileo-2017-03-28.tle")

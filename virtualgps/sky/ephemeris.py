@@ -584,6 +584,9 @@ def load_tle_sets(paths: list[str | Path], prn_table: str | Path | None = None,
     first = np.ones(order.size, dtype=bool)
     first[1:] = prn[order][1:] != prn[order][:-1]
     keep = order[first]
+    if keep.size == 0:
+        raise InputFileError(source, "no satellite could be numbered (GLONASS ones need the "
+                             "slot table to reach the set's date: see ephemeris/README.md)")
     return Constellation(
         prn=prn[keep],
         name=tuple(names[i] for i in keep),
