@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import os
 import re
 import subprocess
@@ -240,7 +241,7 @@ def test_sky_json_lists_states_and_plot_draws(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_sky_lists_every_system_of_its_tle_sets_with_nmea_ids(tmp_path, capsys):
+def test_sky_lists_every_system_of_its_tle_sets_with_nmea_ids(tmp_path, capsys, caplog):
     sets = [str(BUNDLED_EPHEMERIS_DIR / f"{g}-2017-03-28.tle")
             for g in ("gps-ops", "glo-ops", "galileo")]
     args = ["sky", "--scene", "none", "--lla", "52.14,11.64,100", "--time",
@@ -255,6 +256,16 @@ def test_sky_lists_every_system_of_its_tle_sets_with_nmea_ids(tmp_path, capsys):
     assert all(1 <= p <= 36 for p in by["Galileo"])  # as GAGSV writes them (NMEA 4.11)
     assert main(args + ["--systems", "GLONASS"]) == 0
     assert {r["system"] for r in json.loads(capsys.readouterr().out)} == {"GLONASS"}
+    # without --tle, each system's bundled set nearest the time
+    caplog.set_level(logging.INFO)
+    assert main(args[:8] + ["--systems", "GPS,Galileo"]) == 0
+    picked = capsys.readouterr()
+    assert {r["system"] for r in json.loads(picked.out)} == {"GPS", "Galileo"}
+    assert "galileo-2017-03-28.tle (a bundled set" in caplog.text
+    assert main(args[:8] + ["--systems", "BeiDou"]) == 2
+    assert "no beidou TLE set is at hand: give one with --tle" in capsys.readouterr().err
+    assert main(args[:8] + ["--systems", "QZSS"]) == 2
+    assert "no QZSS TLE sets are bundled" in capsys.readouterr().err
     assert main(args + ["--systems", "Glonas"]) == 2
     assert "--systems: unknown satellite system 'Glonas'" in capsys.readouterr().err
     # the receivers track GPS: a GLONASS set alone is refused with a reason

@@ -12,7 +12,7 @@ import pytest
 
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.geodesy import azel_to_enu_unit, ecef_to_enu, enu_to_azel
-from virtualgps.sky import glonass_slots, systems
+from virtualgps.sky import ephemeris, glonass_slots, systems
 from virtualgps.sky.ephemeris import (
     BUNDLED_EPHEMERIS_DIR,
     load_ephemeris_file,
@@ -88,7 +88,8 @@ def test_a_slot_table_with_a_bad_row_names_its_line(tmp_path):
         glonass_slots.read_slot_table(f)
 
 
-def test_glonass_and_galileo_sets_load_with_their_ids(caplog):
+def test_glonass_and_galileo_sets_load_with_their_ids(caplog, monkeypatch):
+    monkeypatch.setattr(ephemeris, "_WARNED", set())  # (a set warns once per process)
     with caplog.at_level(logging.WARNING):
         glo = load_tle(BUNDLED_EPHEMERIS_DIR / "glo-ops-2017-03-28.tle")
     assert glo.prn.tolist() == list(range(65, 89))

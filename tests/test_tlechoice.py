@@ -110,7 +110,8 @@ def test_epochs_are_read_once_per_file_version(sets, monkeypatch):
     _, scene_tle, _ = sets
     loads = []
     real = eph.load_ephemeris_file
-    monkeypatch.setattr(eph, "load_ephemeris_file", lambda p: loads.append(p) or real(p))
+    monkeypatch.setattr(eph, "load_ephemeris_file",
+                        lambda p, *a: loads.append(p) or real(p, *a))
     first = skytime.epoch_center_unix_s(scene_tle)
     assert skytime.epoch_center_unix_s(scene_tle) == first and len(loads) == 1
     shutil.copy(EPH / SET_2020, scene_tle)  # a new file at the same path: read again

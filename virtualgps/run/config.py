@@ -23,7 +23,8 @@ from virtualgps.geodesy import geoid_sep_m
 from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile
 from virtualgps.sky import ephemeris as eph
-from virtualgps.sky.skytime import choose_tle_set
+from virtualgps.sky import systems
+from virtualgps.sky.skytime import GROUPS, choose_tle_set
 from virtualgps.tomlfile import read_toml
 
 log = logging.getLogger(__name__)
@@ -231,6 +232,18 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
             if not p.exists():
                 raise ConfigError(f"TLE file {p} not found (give --tle PATH to a TLE file)")
         log.info("ephemeris: --tle %s", ", ".join(cfg.tle))
+        return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]
+    others = [x for x in (systems_kept or "") if x != "G"]
+    if not cfg.tle and others:  # e.g. sky --systems GPS,GLONASS: a set per system's group
+        paths = []
+        for letter in dict.fromkeys(["G"] * ("G" in systems_kept) + others):
+            if letter not in GROUPS:
+                raise ConfigError(f"no {systems.system_named(letter).name} TLE sets are "
+                                  "bundled: give one with --tle PATH")
+            path, line = choose_tle_set(None, scene_tle if letter == "G" else None,
+                                        t_start_unix_s, GROUPS[letter])
+            log.info("%s", line)
+            paths.append(path)
         return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]
     path, line = choose_tle_set(cfg.tle[0] if cfg.tle else None, scene_tle, t_start_unix_s)
     if not path.exists():

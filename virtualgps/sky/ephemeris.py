@@ -430,6 +430,20 @@ def _place_glonass(entries: list[_TleEntry], norad: NDArray[np.int64], epoch_uni
     return unplaced
 
 
+_WARNED: set[tuple[str, int, int]] = set()
+
+
+def _warn_once(path: Path) -> bool:
+    """Whether this file's warnings are still to be given in this process (a set is read
+    again to date it, and by every receiver of a run: one warning is enough)."""
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    if key in _WARNED:
+        return False
+    _WARNED.add(key)
+    return True
+
+
 def _check_systems(path: str | Path, prn: NDArray[np.int64], kept: str) -> None:
     """ConfigError when a TLE set holds no satellite of the systems kept (e.g. a GLONASS set
     given to a GPS receiver), naming what it holds."""
@@ -505,7 +519,7 @@ def _read_tle_file(path: Path, prn_table: str | Path | None
             (prn < 0) | (systems.letters(prn) == "R")):
         unplaced += left
         prn[left] = -2
-    if unplaced:
+    if unplaced and not log.disabled and _warn_once(path):
         log.warning("%s: %d GLONASS satellite(s) in no orbital slot at their TLE epoch by the "
                     "slot table (%s): left out", path.name, len(unplaced),
                     ", ".join(entries[i].name or f"NORAD {norad[i]}" for i in unplaced))

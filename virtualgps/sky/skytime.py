@@ -1,12 +1,13 @@
 """Which TLE set a run's sky comes from: one rule for ``run``, ``replay``, ``sky`` and ``gap``.
 
 ``--tle`` wins. Otherwise the set whose epoch centre lies nearest the run's start, among the
-scene's set (``tle`` in ``scene.toml``), the bundled GPS sets (``ephemeris/gps-ops-*.tle``; the
-GLONASS and Galileo sets beside them are given with ``--tle``) and the sets
-``virtualgps ephemeris fetch`` cached (:mod:`virtualgps.sky.tlecache`): a simulated or replayed day
-gets its own day's sky where one is at hand, and the sky-time shift
+scene's set (``tle`` in ``scene.toml``), the bundled GPS sets (``ephemeris/gps-ops-*.tle``) and
+the sets ``virtualgps ephemeris fetch`` cached (:mod:`virtualgps.sky.tlecache`): a simulated or
+replayed day gets its own day's sky where one is at hand, and the sky-time shift
 (:func:`virtualgps.sky.ephemeris.sidereal_shift_s`) covers the rest. A receiver log and its
-simulation then share one sky, which per-satellite comparisons (the gap tool) need.
+simulation then share one sky, which per-satellite comparisons (the gap tool) need. Where other
+systems are asked for (``sky --systems``), each system's set is chosen the same way among the
+bundled sets of its group (``glo-ops-*.tle``, ``galileo-*.tle``).
 """
 
 from __future__ import annotations
@@ -35,12 +36,22 @@ def epoch_center_unix_s(path: Path) -> float:
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
     if key not in _EPOCHS:
-        _EPOCHS[key] = float(eph.load_ephemeris_file(path).epoch_center_unix_s)
+        # (dating a candidate says nothing: warnings about its satellites come, once, when the
+        # chosen set is loaded)
+        was, eph.log.disabled = eph.log.disabled, True
+        try:
+            _EPOCHS[key] = float(eph.load_ephemeris_file(path, None).epoch_center_unix_s)
+        finally:
+            eph.log.disabled = was
     return _EPOCHS[key]
 
 
+# The CelesTrak group of each system's TLE sets (the bundled and fetched files are named by it).
+GROUPS = {"G": "gps-ops", "R": "glo-ops", "E": "galileo", "C": "beidou"}
+
+
 def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
-                   t_unix_s: float | None) -> tuple[Path, str]:
+                   t_unix_s: float | None, group: str = "gps-ops") -> tuple[Path, str]:
     """The ephemeris file for a run starting at ``t_unix_s``, and one line saying why.
 
     Parameters
@@ -49,6 +60,8 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
     scene_tle : the scene's set (``Scene.tle_path``), or None
     t_unix_s : the run's start, UTC seconds (a replay's first pose or ``--start-time``); None
         for a live run starting now
+    group : whose sets are candidates (:data:`GROUPS`; the scene's and the fetched sets are
+        GPS sets)
 
     Returns
     -------
@@ -70,14 +83,15 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
     # In order of precedence on equal distance: the scene's set was picked for its scene, and
     # a fetched set of the same epoch as a bundled one is the user's deliberate choice.
     candidates: list[tuple[Path, float | None, str]] = []
-    if scene_tle is not None:
+    gps = group == GROUPS["G"]
+    if scene_tle is not None and gps:
         candidates.append((Path(scene_tle), None, "the scene's set"))
-    for c in tlecache.cached_sets():
+    for c in tlecache.cached_sets() if gps else ():
         age_d = (now - c.fetched_unix_s) / 86400.0
         candidates.append((c.path, c.epoch_center_unix_s,
                            f"a TLE set fetched {age_d:.1f} days ago from {c.url}"))
     candidates += [(p, None, "a bundled set")
-                   for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob("gps-ops-*.tle"))]
+                   for p in sorted(eph.BUNDLED_EPHEMERIS_DIR.glob(f"{group}-*.tle"))]
     best: tuple[Path, float, str] | None = None
     seen: set[Path] = set()
     for path, epoch, why in candidates:
@@ -93,6 +107,8 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
         if best is None or abs(epoch - t) < abs(best[1] - t):
             best = (path, epoch, why)
     if best is None:
+        if not gps:
+            raise ConfigError(f"no {group} TLE set is at hand: give one with --tle PATH")
         raise ConfigError("no TLE set could be read (the scene's, the bundled or the fetched "
                           "ones): give --tle PATH to a TLE file")
     path, epoch, why = best
