@@ -1,5 +1,5 @@
-"""Today's sky (issue #9): ``virtualgps ephemeris fetch`` from a local HTTP server on 127.0.0.1,
-the cache, and runs that pick the fetched set that fits their time."""
+"""Today's sky: ``virtualgps ephemeris fetch`` from a local HTTP server on 127.0.0.1, the cache,
+and runs that pick the fetched set that fits their time."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from virtualgps.sky import tlecache
-from virtualgps.sky.ephemeris import default_tle_path
+from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR, default_tle_path
 
 T_2020 = "2020-05-14T22:30:00Z"  # the bundled 2020 set's day
 
@@ -31,6 +31,8 @@ def server(tmp_path):
     root = tmp_path / "www"
     root.mkdir()
     (root / "gps.tle").write_bytes(default_tle_path().read_bytes())
+    (root / "galileo.tle").write_bytes(
+        (BUNDLED_EPHEMERIS_DIR / "galileo-2017-03-28.tle").read_bytes())
     (root / "page.html").write_text("<html><body>Service unavailable</body></html>\n")
     httpd = ThreadingHTTPServer(("127.0.0.1", 0), partial(_Quiet, directory=str(root)))
     thread = threading.Thread(target=httpd.serve_forever, daemon=True)
@@ -95,3 +97,21 @@ def test_cached_sets_come_newest_fetch_first(tmp_path):
         sets.append(path)
     (tmp_path / "gps-ops-2.json").write_text("{}")  # no set beside it, no fields: left out
     assert [c.path for c in tlecache.cached_sets(tmp_path)] == sets[::-1]
+
+
+def test_each_group_is_fetched_on_its_own_and_sky_takes_it(server, tmp_path):
+    cache = tmp_path / "cache"
+    r = _cli(cache, "ephemeris", "fetch", "--groups", "galileo", "--url", f"{server}/galileo.tle")
+    assert r.returncode == 0 and "18 satellites" in r.stdout, r.stderr
+    (tle,) = (cache / "virtualgps" / "tle").glob("galileo-*.tle")
+    # a GPS set is not a Galileo set; --url names one group
+    bad = _cli(cache, "ephemeris", "fetch", "--groups", "galileo", "--url", f"{server}/gps.tle")
+    assert bad.returncode != 0 and "did not give a Galileo TLE set" in bad.stderr
+    two = _cli(cache, "ephemeris", "fetch", "--groups", "galileo,glo-ops", "--url", "x")
+    assert two.returncode == 2 and "--url fetches one group" in two.stderr
+    listed = _cli(cache, "ephemeris", "list")
+    assert str(tle) in listed.stdout and "18 satellites" in listed.stdout
+    sky = _cli(cache, "sky", "--time", "2017-03-28T14:52:48Z", "--scene", "none", "--lla",
+               "52.14,11.64,100", "--json", "--systems", "Galileo")
+    assert sky.returncode == 0 and "TLE set fetched" in sky.stderr, sky.stderr
+    assert {r["system"] for r in json.loads(sky.stdout)} == {"Galileo"}

@@ -168,13 +168,15 @@ def build_parser() -> argparse.ArgumentParser:
                      "exists)")
     gap.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
 
-    ephem = sub.add_parser("ephemeris", help="today's sky: fetch current GPS TLE sets, list them",
-                           description="'fetch' downloads the current GPS TLE set into the "
-                           "user cache; run and sky then use the cached set nearest their time "
-                           "when it is fresh. 'list' shows the cached sets.")
+    ephem = sub.add_parser("ephemeris", help="today's sky: fetch current TLE sets, list them",
+                           description="'fetch' downloads the current TLE set of each group "
+                           "(gps-ops, glo-ops, galileo, beidou) into the user cache; run, "
+                           "replay, sky and gap then use the cached set nearest their time. "
+                           "'list' shows the cached sets.")
     ephem.add_argument("action", choices=("fetch", "list"))
-    ephem.add_argument("--url", help="where to fetch from (default: CelesTrak's GP query for "
-                       "the GPS operational group)")
+    ephem.add_argument("--groups", help="comma-separated groups (default: all four)")
+    ephem.add_argument("--url", help="where to fetch one group's set from (default: CelesTrak's "
+                       "GP query for the group)")
     ephem.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
     return parser
 
@@ -579,14 +581,29 @@ def cmd_gap(args: argparse.Namespace) -> int:
 
 
 def cmd_ephemeris(args: argparse.Namespace) -> int:
-    from virtualgps.sky import tlecache
+    from virtualgps.sky import systems, tlecache
 
+    groups = (args.groups.split(",") if args.groups
+              else ["gps-ops"] if args.url else list(systems.GROUPS.values()))
     if args.action == "fetch":
-        c = tlecache.fetch(args.url or tlecache.CELESTRAK_GPS_URL)
-        print(f"{c.path}: {c.n_sat} GPS satellites, epoch {_utc(c.epoch_center_unix_s)}, "
-              f"from {c.url}")
-        return 0
-    sets = tlecache.cached_sets()
+        if args.url and len(groups) != 1:
+            raise ConfigError("--url fetches one group: name it with --groups (e.g. "
+                              "--groups galileo); the default is gps-ops")
+        failed = []
+        for group in groups:
+            try:
+                c = tlecache.fetch(args.url, group=group)
+            except VirtualGPSError as exc:
+                if len(groups) == 1:
+                    raise
+                log.warning("%s: not fetched: %s", group, exc)
+                failed.append(group)
+                continue
+            print(f"{c.path}: {c.n_sat} satellites, epoch {_utc(c.epoch_center_unix_s)}, "
+                  f"from {c.url}")
+        # (the receivers track GPS: a fetch without its GPS set has failed)
+        return 1 if "gps-ops" in failed else 0
+    sets = [c for g in groups for c in tlecache.cached_sets(group=g)]
     if not sets:
         print(f"no fetched TLE sets in {tlecache.cache_dir()} ('virtualgps ephemeris fetch')")
     for c in sets:

@@ -24,7 +24,7 @@ from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile
 from virtualgps.sky import ephemeris as eph
 from virtualgps.sky import systems
-from virtualgps.sky.skytime import GROUPS, choose_tle_set
+from virtualgps.sky.skytime import choose_tle_set
 from virtualgps.tomlfile import read_toml
 
 log = logging.getLogger(__name__)
@@ -237,11 +237,11 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
     if not cfg.tle and others:  # e.g. sky --systems GPS,GLONASS: a set per system's group
         paths = []
         for letter in dict.fromkeys(["G"] * ("G" in systems_kept) + others):
-            if letter not in GROUPS:
+            if letter not in systems.GROUPS:
                 raise ConfigError(f"no {systems.system_named(letter).name} TLE sets are "
                                   "bundled: give one with --tle PATH")
             path, line = choose_tle_set(None, scene_tle if letter == "G" else None,
-                                        t_start_unix_s, GROUPS[letter])
+                                        t_start_unix_s, systems.GROUPS[letter])
             log.info("%s", line)
             paths.append(path)
         return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]

@@ -7,7 +7,7 @@ replayed day gets its own day's sky where one is at hand, and the sky-time shift
 (:func:`virtualgps.sky.ephemeris.sidereal_shift_s`) covers the rest. A receiver log and its
 simulation then share one sky, which per-satellite comparisons (the gap tool) need. Where other
 systems are asked for (``sky --systems``), each system's set is chosen the same way among the
-bundled sets of its group (``glo-ops-*.tle``, ``galileo-*.tle``).
+bundled and fetched sets of its group (``glo-ops-*.tle``, ``galileo-*.tle``).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from pathlib import Path
 
 from virtualgps.exceptions import ConfigError, VirtualGPSError
 from virtualgps.sky import ephemeris as eph
+from virtualgps.sky import systems
 
 # (resolved path, mtime in ns, size in bytes) -> epoch centre, UTC Unix seconds. Choosing reads
 # every candidate's epochs; each file is parsed once per process (a fleet resolves its set per
@@ -46,10 +47,6 @@ def epoch_center_unix_s(path: Path) -> float:
     return _EPOCHS[key]
 
 
-# The CelesTrak group of each system's TLE sets (the bundled and fetched files are named by it).
-GROUPS = {"G": "gps-ops", "R": "glo-ops", "E": "galileo", "C": "beidou"}
-
-
 def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
                    t_unix_s: float | None, group: str = "gps-ops") -> tuple[Path, str]:
     """The ephemeris file for a run starting at ``t_unix_s``, and one line saying why.
@@ -60,8 +57,9 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
     scene_tle : the scene's set (``Scene.tle_path``), or None
     t_unix_s : the run's start, UTC seconds (a replay's first pose or ``--start-time``); None
         for a live run starting now
-    group : whose sets are candidates (:data:`GROUPS`; the scene's and the fetched sets are
-        GPS sets)
+    group : whose sets are candidates, bundled and fetched (:data:`virtualgps.sky.systems.
+        GROUPS`; a scene's set is a
+        GPS set)
 
     Returns
     -------
@@ -83,10 +81,10 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
     # In order of precedence on equal distance: the scene's set was picked for its scene, and
     # a fetched set of the same epoch as a bundled one is the user's deliberate choice.
     candidates: list[tuple[Path, float | None, str]] = []
-    gps = group == GROUPS["G"]
+    gps = group == systems.GROUPS["G"]
     if scene_tle is not None and gps:
         candidates.append((Path(scene_tle), None, "the scene's set"))
-    for c in tlecache.cached_sets() if gps else ():
+    for c in tlecache.cached_sets(group=group):
         age_d = (now - c.fetched_unix_s) / 86400.0
         candidates.append((c.path, c.epoch_center_unix_s,
                            f"a TLE set fetched {age_d:.1f} days ago from {c.url}"))

@@ -57,6 +57,8 @@ GALILEO = System("Galileo", "E", 301, 336, 300, "GA", 3, 300)
 BEIDOU = System("BeiDou", "C", 401, 463, 400, "GB", 4, 400)
 QZSS = System("QZSS", "J", 193, 202, 0, "GQ", 5, 192)
 SYSTEMS: tuple[System, ...] = (GPS, GLONASS, GALILEO, BEIDOU, QZSS, SBAS)
+# CelesTrak's group of each system's operational satellites (TLE files here are named by it).
+GROUPS = {"G": "gps-ops", "R": "glo-ops", "E": "galileo", "C": "beidou"}
 BY_NAME = {s.name.lower(): s for s in SYSTEMS} | {s.letter.lower(): s for s in SYSTEMS}
 
 

@@ -1,10 +1,13 @@
-"""Today's sky: current GPS TLE sets fetched into the user's cache, and the one that fits a run.
+"""Today's sky: current TLE sets fetched into the user's cache, and the one that fits a run.
 
-``virtualgps ephemeris fetch`` downloads the GPS operational group from CelesTrak's GP query
+``virtualgps ephemeris fetch`` downloads each system's group (GPS ``gps-ops``, GLONASS
+``glo-ops``, Galileo ``galileo``, BeiDou ``beidou``) from CelesTrak's GP query
 (https://celestrak.org/NORAD/documentation/gp-data-formats.php; ``--url`` to override) into
-``$XDG_CACHE_HOME/virtualgps/tle`` (``~/.cache/virtualgps/tle``), one file per fetch named by
-its UTC fetch time, with a JSON sidecar (source, fetch time, TLE epoch, satellites). A download
-is parsed before it is kept, so a failed or garbled fetch never replaces a good set.
+``$XDG_CACHE_HOME/virtualgps/tle`` (``~/.cache/virtualgps/tle``), one file per group and fetch
+named by both (``galileo-20261126T1900Z.tle``), with a JSON sidecar (source, fetch time, TLE
+epoch, satellites). A download is parsed before it is kept, so a failed or garbled fetch never
+replaces a good set; a set whose satellites cannot be numbered (GLONASS satellites the slot
+table does not place at its date) is not kept either.
 
 The cached sets are candidates beside the scene's and the bundled sets: ``run``, ``replay``,
 ``sky`` and ``gap`` take the one whose epoch lies nearest their start time
@@ -22,13 +25,14 @@ from pathlib import Path
 
 from virtualgps.exceptions import VirtualGPSError
 from virtualgps.sky import ephemeris as eph
+from virtualgps.sky import systems
 from virtualgps.usercache import user_cache_dir
 
 log = logging.getLogger(__name__)
 
-CELESTRAK_GPS_URL = "https://celestrak.org/NORAD/elements/gp.php?GROUP=gps-ops&FORMAT=tle"
+CELESTRAK_URL = "https://celestrak.org/NORAD/elements/gp.php?GROUP={group}&FORMAT=tle"
 FETCH_TIMEOUT_S = 30.0
-MAX_BYTES = 1 << 20  # a GPS set is ~6 KB; anything near a megabyte is not one
+MAX_BYTES = 1 << 20  # a group's set is 5-15 KB; anything near a megabyte is not one
 
 
 @dataclass(frozen=True)
@@ -37,7 +41,7 @@ class CachedSet:
 
     path : the TLE file; url : where it came from
     fetched_unix_s : UTC seconds of the fetch; epoch_center_unix_s : its satellites' mean epoch
-    n_sat : GPS satellites in it
+    n_sat : its satellites (of its group's system)
     """
 
     path: Path
@@ -52,15 +56,17 @@ def cache_dir() -> Path:
     return user_cache_dir("tle")
 
 
-def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
-          timeout_s: float = FETCH_TIMEOUT_S) -> CachedSet:
-    """Download a GPS TLE set into the cache.
+def fetch(url: str | None = None, cache: Path | None = None,
+          timeout_s: float = FETCH_TIMEOUT_S, group: str = "gps-ops") -> CachedSet:
+    """Download one group's TLE set into the cache.
 
     Parameters
     ----------
-    url : http(s) or file URL of a 2- or 3-line TLE set whose names carry the PRN
+    url : http(s) or file URL of a 2- or 3-line TLE set (default: CelesTrak's for the group)
     cache : the cache folder (default :func:`cache_dir`)
     timeout_s : seconds before the download is given up
+    group : the group (:data:`virtualgps.sky.systems.GROUPS`): names the file, and the set
+        must hold that system's satellites
 
     Returns
     -------
@@ -74,6 +80,12 @@ def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
     import urllib.error  # (here: every run reads the cache; only a fetch needs http, 15 ms)
     import urllib.request
 
+    letter = next((x for x, g in systems.GROUPS.items() if g == group), None)
+    if letter is None:
+        raise VirtualGPSError(f"unknown group {group!r}: expected one of "
+                              + ", ".join(systems.GROUPS.values()))
+    what = f"{systems.system_named(letter).name} TLE set"
+    url = url or CELESTRAK_URL.format(group=group)
     folder = cache or cache_dir()
     try:
         with urllib.request.urlopen(url, timeout=timeout_s) as resp:  # noqa: S310 (user's URL)
@@ -85,18 +97,18 @@ def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
         raise VirtualGPSError(f"cannot fetch {url}: {reason} (without a fetched set, the "
                               "bundled sets and the sky-time shift are used)") from None
     if len(data) > MAX_BYTES:
-        raise VirtualGPSError(f"{url}: more than {MAX_BYTES} bytes: not a GPS TLE set")
+        raise VirtualGPSError(f"{url}: more than {MAX_BYTES} bytes: not a {what}")
     fetched = time.time()
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(fetched))
     folder.mkdir(parents=True, exist_ok=True)
-    final = folder / f"gps-ops-{stamp}.tle"
+    final = folder / f"{group}-{stamp}.tle"
     tmp = folder / f".{final.name}.part"
     tmp.write_bytes(data)
     try:
-        sats = eph.load_tle(tmp)
+        sats = eph.load_tle(tmp, systems_kept=letter)
     except VirtualGPSError as exc:
         tmp.unlink()
-        raise VirtualGPSError(f"{url} did not give a GPS TLE set: {exc}") from None
+        raise VirtualGPSError(f"{url} did not give a {what}: {exc}") from None
     os.replace(tmp, final)
     cached = CachedSet(final, url, fetched, float(sats.epoch_center_unix_s), len(sats.prn))
     meta = {"url": url, "fetched_unix_s": fetched,
@@ -105,12 +117,12 @@ def fetch(url: str = CELESTRAK_GPS_URL, cache: Path | None = None,
     return cached
 
 
-def cached_sets(cache: Path | None = None) -> list[CachedSet]:
-    """The fetched sets in the cache, newest fetch first (a set without a readable sidecar is
-    left out)."""
+def cached_sets(cache: Path | None = None, group: str = "gps-ops") -> list[CachedSet]:
+    """One group's fetched sets in the cache, newest fetch first (a set without a readable
+    sidecar is left out)."""
     folder = cache or cache_dir()
     out = []
-    for side in folder.glob("gps-ops-*.json") if folder.is_dir() else ():
+    for side in folder.glob(f"{group}-*.json") if folder.is_dir() else ():
         tle = side.with_suffix(".tle")
         try:
             m = json.loads(side.read_text())
