@@ -281,3 +281,22 @@ def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant(
     straight = np.tile([0.0, 1.0, 0.0], (300, 1))
     err = -2.0 * straight + rng.normal(0, 1.0, (300, 3))
     assert np.isnan(where.lag_s(err[None], straight, moving)[0])
+
+
+def test_systems_the_simulation_lacks_are_named_as_a_cause():
+    from virtualgps.gap import causes
+
+    prn = np.array([3, 12, 70, 71, 311])
+    n = 10
+    in_view = np.ones((n, prn.size), bool)
+    used = in_view.copy()
+    used[:, 4] = False  # Galileo seen, never used
+    in_view[:5, 2:4] = False  # GLONASS in half the epochs
+    c = causes.constellations("phone", prn, in_view, used, "G")
+    assert c["name"] == "constellations" and c["run"] == "phone"
+    assert c["systems"]["GLONASS"] == {"in_view_median": 2.0, "used_median": 2.0,
+                                       "epochs_share": 0.5}
+    assert c["systems"]["Galileo"]["used_median"] == 0.0
+    assert "GLONASS" in c["what"] and "Galileo" in c["what"]
+    assert causes.constellations("gps", prn[:2], in_view[:, :2], used[:, :2], "G") is None
+    assert causes.constellations("all", prn, in_view, used, "GRE") is None

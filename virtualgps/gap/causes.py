@@ -12,6 +12,9 @@ named as such and measured, so that no effect of section 6 absorbs them.
   less the seeds' own and less the fixes' lag behind a moving truth, at :data:`OFFSET_P`;
   where it holds and exceeds :data:`OFFSET_MIN_M`, the real errors are taken about the truth
   moved by the estimate before anything else is judged.
+- ``constellations``: the real receiver tracks satellite systems the simulation does not (a
+  phone's GLONASS beside GPS): satellites used, HDOP and tracking then differ for that reason,
+  which no effect of a GPS receiver explains. Counted per run from the log's GSV and GSA.
 - ``time_offset``: a log-vs-truth clock offset moves every fix along the track by speed x
   offset. Beyond the ingest's threshold it is removed there; below it, it is measured per block
   (with an interval) and reported: an output latency looks exactly the same in positions, so
@@ -29,6 +32,7 @@ from scipy import special
 from virtualgps import geodesy
 from virtualgps.gap.runs import Run
 from virtualgps.gap.where import MOVING_MPS, errors_enu, lag_s
+from virtualgps.sky import systems
 
 OFFSET_P = 0.01  # a truth offset is named at this level (it moves the truth for the rest)
 OFFSET_MIN_M = 1.0  # and only when larger than this
@@ -186,3 +190,34 @@ def time_offset(run: Run, corr_time_s: float) -> dict | None:
             / math.sqrt(lags.size)
         out["interval_s"] = [float(lags.mean() - half), float(lags.mean() + half)]
     return out
+
+
+def constellations(name: str, prn: np.ndarray, in_view: np.ndarray, used: np.ndarray,
+                   simulated: str) -> dict | None:
+    """The satellite systems a real log tracks that the simulation lacks (None: none).
+
+    prn : (k,) the log's satellite numbers (GSV/GSA IDs: GPS 1-32, GLONASS 65-96, ...)
+    in_view, used : (n, k) bool, listed in GSV, listed in GSA, per epoch
+    simulated : RINEX letters of the systems the simulation has (e.g. "G")
+    """
+    letters = systems.letters(prn)
+    extra = {}
+    for letter in sorted(set(letters.tolist()) - set(simulated) - {"?"}):
+        cols = letters == letter
+        seen = in_view[:, cols].sum(axis=1)
+        used_n = used[:, cols].sum(axis=1)
+        listed = seen > 0
+        if listed.any():
+            extra[systems.system_named(letter).name] = {
+                "in_view_median": float(np.median(seen[listed])),
+                "used_median": float(np.median(used_n[listed])),
+                "epochs_share": float(listed.mean())}
+    if not extra:
+        return None
+    what = ", ".join(f"{k} (median {v['in_view_median']:g} in view, {v['used_median']:g} used)"
+                     for k, v in extra.items())
+    return {"name": "constellations", "kind": "receiver", "run": name, "systems": extra,
+            "simulated": [systems.system_named(x).name for x in simulated],
+            "what": f"the real receiver also tracks {what}, which the simulation does not: "
+                    "satellites used, HDOP and tracking differ for that reason, and no effect of "
+                    "the profile explains it"}

@@ -215,6 +215,8 @@ def _cause_rows(report: dict) -> list[dict]:
             what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"
                     + (f" (95 %: {lo:.2f} to {hi:.2f} s)" if math.isfinite(lo) else "")
                     + f". {c['what']}")
+        elif c["name"] == "constellations":
+            what = f"{c['run']}: {c['what']}"
         else:
             what = c.get("what", "") + (
                 f"; held-out gap {_fmt(c.get('gap_flat_earth'))} with it, "

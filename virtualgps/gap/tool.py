@@ -31,6 +31,7 @@ from virtualgps.gap.where import Obs, RunView, autocorr_time_s, errors_enu, trac
 from virtualgps.receiver.profiles import build_profile, load_profile_dict
 from virtualgps.run.config import coverage_note
 from virtualgps.sky import ephemeris as eph
+from virtualgps.sky import systems
 from virtualgps.sky.skytime import choose_tle_set
 
 log = logging.getLogger(__name__)
@@ -172,6 +173,12 @@ def diagnose(
         lag = cz.time_offset(runs[i], tau_real[i])
         if lag is not None:
             causes.append(lag)
+    simulated = "".join(sorted(set(systems.letters(ephem.prn).tolist()) - {"?"})) or "G"
+    for ri in runs_in:
+        ep = ri.epochs
+        extra = cz.constellations(ri.name, ep.prn, ep.in_view, ep.used, simulated)
+        if extra is not None:
+            causes.append(extra)
     georef = cz.georeference(runs, profile.georef)
     keys = share_runs(runs)
     # The located gaps are judged in a thread while the workers simulate the candidates.
@@ -503,6 +510,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
                          f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
         elif c["name"] == "georeference_model":
             lines.append(f"  cause: {c['what']}")
+        elif c["name"] == "constellations":
+            lines.append(f"  cause: {c['run']}: {c['what']}")
     for g in report["located"][:top]:
         w = g["worst"]
         lines.append(f"  gap: {g['metric']} [{w['segment']}"
