@@ -118,6 +118,20 @@ def test_a_two_line_glonass_set_is_placed_by_norad_number(tmp_path):
     assert load_tle(f).prn.tolist() == list(range(65, 89))
 
 
+def test_a_set_newer_than_the_slot_tables_sources_is_placed_with_a_warning(tmp_path, caplog):
+    lines = (BUNDLED_EPHEMERIS_DIR / "glo-ops-2017-03-28.tle").read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if "(730)" in ln)
+    name, l1, l2 = lines[k:k + 3]
+    l1 = l1[:18] + "26100.50000000" + l1[32:68]  # epoch 2026-04-10
+    l1 += str(ephemeris.tle_checksum(l1))
+    f = tmp_path / "glo-2026.tle"
+    f.write_text(f"{name}\n{l1}\n{l2}\n")
+    with caplog.at_level(logging.WARNING):
+        c = load_tle(f)
+    assert c.prn.tolist() == [65]
+    assert "GLONASS slots after 2021-10-24" in caplog.text
+
+
 def test_a_set_of_satellites_in_no_known_slot_says_so(tmp_path):
     lines = (BUNDLED_EPHEMERIS_DIR / "glo-ops-2017-03-28.tle").read_text().splitlines()
     spares = [ln for k in range(0, len(lines), 3) if "(714)" in lines[k] or "(725)" in lines[k]

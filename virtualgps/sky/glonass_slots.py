@@ -19,6 +19,9 @@ from virtualgps.bundled import bundled_dir
 from virtualgps.exceptions import InputFileError
 
 BUNDLED_SLOT_TABLE = bundled_dir("ephemeris") / "glonass-slots.csv"
+# The date of the bundled table's latest source (the IAC status of 2021-10-24): a satellite
+# placed later is assumed to have kept its slot since.
+BUNDLED_KNOWN_UNTIL = "2021-10-24"
 COLUMNS = ("glonass_number", "cosmos", "norad", "slot", "channel", "from", "to", "source")
 
 
