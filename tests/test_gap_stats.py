@@ -284,8 +284,6 @@ def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant(
 
 
 def test_systems_the_simulation_lacks_are_named_as_a_cause():
-    from virtualgps.gap import causes
-
     prn = np.array([3, 12, 70, 71, 311])
     n = 10
     in_view = np.ones((n, prn.size), bool)
