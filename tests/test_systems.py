@@ -200,3 +200,12 @@ def test_glonass_sky_matches_the_magdeburg_phones_glgsv():
     assert np.median(glo) < 1.6 and np.median(glo) < np.median(gps) + 0.3, (
         np.median(glo), np.median(gps))
     assert np.percentile(glo, 95) < 3.0 and glo.max() < 5.0
+
+
+def test_skyplot_labels_satellites_of_several_systems_by_rinex_name():
+    from virtualgps.plot import sat_label
+
+    assert sat_label({"system": "GPS", "prn": 12}, False) == "12"
+    assert [sat_label({"system": s, "prn": p}, True) for s, p in
+            (("GPS", 12), ("GLONASS", 74), ("Galileo", 11), ("SBAS", 36), ("QZSS", 1))] == [
+        "G12", "R10", "E11", "S23", "J01"]

@@ -15,12 +15,29 @@ STATE_STYLE = {
 }
 
 
+# RINEX 3 names from the NMEA IDs of ``virtualgps sky`` rows: (letter, NMEA ID - number)
+_RINEX = {"GPS": ("G", 0), "GLONASS": ("R", 64), "Galileo": ("E", 0), "BeiDou": ("C", 0),
+          "QZSS": ("J", 0), "SBAS": ("S", 13)}
+
+
+def sat_label(row: dict[str, Any], several_systems: bool) -> str:
+    """A satellite's label on a skyplot: its NMEA ID alone for one system, else its RINEX name
+    (``G12``, ``R10`` for GLONASS slot 10 = NMEA 74, ``E11``, ``S23`` for SBAS NMEA 36)."""
+    if not several_systems:
+        return str(row["prn"])
+    code, off = _RINEX.get(row.get("system", "GPS"), ("?", 0))
+    return f"{code}{row['prn'] - off:02d}"
+
+
 def skyplot(rows: Sequence[dict[str, Any]], path: Path, title: str = "") -> None:
     """Draw a polar skyplot of satellites (north up, azimuth clockwise, zenith at the centre).
 
     Parameters
     ----------
-    rows : dicts with ``prn``, ``az_deg``, ``el_deg``, ``state`` (as ``virtualgps sky`` prints)
+    rows : dicts with ``prn``, ``az_deg``, ``el_deg``, ``state`` and optionally ``system`` (as
+        ``virtualgps sky`` prints them); with more than one system each satellite is labelled
+        by its RINEX name (``G12``, ``R10`` for GLONASS slot 10, ``E11``: the IDs of different
+        systems overlap)
     path : PNG file to write
     title : figure title
     """
@@ -36,6 +53,7 @@ def skyplot(rows: Sequence[dict[str, Any]], path: Path, title: str = "") -> None
     ax.set_theta_direction(-1)
     ax.set_rlim(0, 90)
     ax.set_rticks([0, 30, 60, 90], labels=["90°", "60°", "30°", "0°"])
+    several = len({r.get("system", "GPS") for r in rows}) > 1
     seen = set()
     for r in rows:
         color, marker = STATE_STYLE.get(r["state"], ("black", "."))
@@ -43,9 +61,8 @@ def skyplot(rows: Sequence[dict[str, Any]], path: Path, title: str = "") -> None
         seen.add(r["state"])
         theta, radius = np.radians(r["az_deg"]), 90.0 - r["el_deg"]
         ax.plot(theta, radius, marker=marker, color=color, markersize=10, linestyle="", label=label)
-        ax.annotate(
-            str(r["prn"]), (theta, radius), textcoords="offset points", xytext=(6, 6), fontsize=9
-        )
+        ax.annotate(sat_label(r, several), (theta, radius), textcoords="offset points",
+                    xytext=(6, 6), fontsize=9)
     ax.legend(loc="lower left", bbox_to_anchor=(-0.1, -0.12), ncol=3, frameon=False)
     ax.set_title(title or "sky", pad=18)
     fig.savefig(path, dpi=110, bbox_inches="tight")
