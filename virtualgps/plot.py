@@ -15,7 +15,8 @@ STATE_STYLE = {
 }
 
 
-# RINEX 3 names from the NMEA IDs of ``virtualgps sky`` rows: (letter, NMEA ID - number)
+# RINEX 3 names from the NMEA IDs of ``virtualgps sky`` rows: (letter, NMEA ID - number); the
+# systems' own table is virtualgps.sky.systems, a layer above this module
 _RINEX = {"GPS": ("G", 0), "GLONASS": ("R", 64), "Galileo": ("E", 0), "BeiDou": ("C", 0),
           "QZSS": ("J", 0), "SBAS": ("S", 13)}
 

@@ -33,7 +33,6 @@ Accepted approximations (with their size)
 
 from __future__ import annotations
 
-import datetime as dt
 import logging
 import math
 import re
@@ -407,12 +406,6 @@ class Constellation:
         return self.sat_state_ecef(t_unix_s, with_velocity=False)[0]
 
 
-def _utc_date_s(day: str) -> float:
-    """UTC seconds of a YYYY-MM-DD date's midnight."""
-    d = dt.date.fromisoformat(day)
-    return dt.datetime(d.year, d.month, d.day, tzinfo=dt.UTC).timestamp()
-
-
 def _place_glonass(entries: list[_TleEntry], norad: NDArray[np.int64], epoch_unix_s: F64,
                    prn: NDArray[np.int64], which: list[int], by_name: bool = True) -> list[int]:
     """Number GLONASS entries 64 + slot by the bundled slot table at each one's TLE epoch (in
@@ -423,7 +416,7 @@ def _place_glonass(entries: list[_TleEntry], norad: NDArray[np.int64], epoch_uni
     from virtualgps.sky import glonass_slots
 
     table = glonass_slots.read_slot_table()
-    known_until = _utc_date_s(glonass_slots.BUNDLED_KNOWN_UNTIL)
+    known_until = glonass_slots.date_unix_s(glonass_slots.BUNDLED_KNOWN_UNTIL)
     unplaced = []
     if by_name and any(float(epoch_unix_s[i]) > known_until for i in which):
         log.warning("GLONASS slots after %s (the slot table's latest source) are assumed "

@@ -50,14 +50,19 @@ class SlotEntry:
         return self.from_unix_s <= t_unix_s < self.to_unix_s
 
 
+def date_unix_s(day: str) -> float:
+    """UTC seconds of a ``YYYY-MM-DD`` date's midnight (ValueError if malformed)."""
+    d = dt.date.fromisoformat(day.strip())
+    return dt.datetime(d.year, d.month, d.day, tzinfo=dt.UTC).timestamp()
+
+
 def _date_s(text: str, default: float, path: Path, line: int) -> float:
     if not text.strip():
         return default
     try:
-        d = dt.date.fromisoformat(text.strip())
+        return date_unix_s(text)
     except ValueError:
         raise InputFileError(path, f"date {text!r} is not YYYY-MM-DD", line=line) from None
-    return dt.datetime(d.year, d.month, d.day, tzinfo=dt.UTC).timestamp()
 
 
 def read_slot_table(path: str | Path = BUNDLED_SLOT_TABLE) -> list[SlotEntry]:
