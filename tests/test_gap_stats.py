@@ -298,3 +298,33 @@ def test_systems_the_simulation_lacks_are_named_as_a_cause():
     assert "GLONASS" in c["what"] and "Galileo" in c["what"]
     assert causes.constellations("gps", prn[:2], in_view[:, :2], used[:, :2], "G") is None
     assert causes.constellations("all", prn, in_view, used, "GRE") is None
+
+
+def test_a_gga_that_counts_other_systems_is_read_by_its_gsa():
+    """A phone's GNGGA may count its GLONASS satellites too: compared with a GPS simulation,
+    the satellites used are the GPS ones its GSA lists."""
+    from virtualgps.device.nmea import nmea_checksum, nmea_epochs_from_lines
+    from virtualgps.gap.runs import _real_obs
+
+    def line(body: str) -> str:
+        return f"${body}*{nmea_checksum(body)}"
+
+    gps = [2, 5, 12, 15, 24, 25, 29]
+    glo = [65, 66, 72, 73, 74]
+
+    def gsa(talker: str, prns: list[int], system: int) -> str:
+        fields = [str(p) for p in prns] + [""] * (12 - len(prns))
+        return line(f"{talker}GSA,A,3,{','.join(fields)},1.8,0.9,1.5,{system}")
+
+    lines = [line("GNGGA,145248.00,5208.4000,N,01138.4000,E,1,12,0.9,100.0,M,45.0,M,,"),
+             line("GNRMC,145248.00,A,5208.4000,N,01138.4000,E,0.0,0.0,280317,,,A"),
+             gsa("GP", gps, 1), gsa("GL", glo, 2)]
+    ep = nmea_epochs_from_lines(lines)
+    assert ep.sats_used[0] == 12  # what the GGA says
+    obs = _real_obs(ep, np.arange(1, 33))
+    assert obs.sats_used[0, 0] == 7
+    # a GPS-only log keeps its GGA's count, whatever its GSA lists
+    gps_only = nmea_epochs_from_lines([
+        line("GPGGA,145248.00,5208.4000,N,01138.4000,E,1,08,0.9,100.0,M,45.0,M,,"), lines[1],
+        lines[2]])
+    assert _real_obs(gps_only, np.arange(1, 33)).sats_used[0, 0] == 8

@@ -27,6 +27,7 @@ from virtualgps.gap.where import (
 )
 from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import Profile
+from virtualgps.sky import systems
 
 SCENE_REACH_M = 5000.0
 
@@ -58,6 +59,13 @@ def _real_obs(epochs, prn: np.ndarray) -> Obs:
                    geodesy.geoid_sep_m(np.nan_to_num(epochs.lat_deg),
                                        np.nan_to_num(epochs.lon_deg)))
     sats = np.where(epochs.sats_used >= 0, epochs.sats_used, np.nan).astype(float)
+    # A receiver that uses systems the simulation lacks may count them all in its GGA (a
+    # phone's GNGGA): where its GSA lists such satellites, the satellites used are the
+    # simulated systems' ones its GSA lists (the Magdeburg phone's GGA counts exactly those).
+    letters = systems.letters(epochs.prn)
+    other = ~np.isin(letters, np.unique(systems.letters(prn)))
+    if epochs.used[:, other].any():
+        sats = np.where(epochs.sats_used_gsa >= 0, used.sum(axis=1), sats)
     # An epoch without a fix has no position, whatever it prints (MTK: 8960.0000,N 137.0 m)
     fix = epochs.quality > 0
     lat, lon = (np.where(fix, x, np.nan) for x in (epochs.lat_deg, epochs.lon_deg))
