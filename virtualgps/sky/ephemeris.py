@@ -448,11 +448,17 @@ def _warn_once(path: Path) -> bool:
     return True
 
 
+def _kept_letters(kept: str) -> list[str]:
+    """The letters :func:`systems.letters` gives the satellites kept: a PRN of no known system
+    (a test's ``(PRN 99)``) counts as GPS, as it always did."""
+    return list(kept) + (["?"] if "G" in kept else [])
+
+
 def _check_systems(path: str | Path, prn: NDArray[np.int64], kept: str) -> None:
     """ConfigError when a TLE set holds no satellite of the systems kept (e.g. a GLONASS set
     given to a GPS receiver), naming what it holds."""
     have = systems.letters(prn[prn >= 0])
-    if not np.isin(have, list(kept) + (["?"] if "G" in kept else [])).any():
+    if not np.isin(have, _kept_letters(kept)).any():
         held = ", ".join(f"{systems.system_named(x).name}: {int((have == x).sum())}"
                          for x in sorted(set(have.tolist())) if x != "?")
         wanted = ", ".join(systems.system_named(x).name for x in kept)
@@ -593,9 +599,7 @@ def load_tle_sets(paths: list[str | Path], prn_table: str | Path | None = None,
     source = ", ".join(str(p) for p in paths)
     if systems_kept is not None:
         _check_systems(source, prn, systems_kept)
-        # (a PRN of no known system, e.g. a test's "(PRN 99)", is taken as GPS's, as before)
-        kept = list(systems_kept) + (["?"] if "G" in systems_kept else [])
-        prn = np.where(np.isin(systems.letters(prn), kept), prn, -2)
+        prn = np.where(np.isin(systems.letters(prn), _kept_letters(systems_kept)), prn, -2)
     # Keep one entry per PRN, the newest epoch: sort by (PRN, -epoch), take the first of each.
     order = np.lexsort((-epoch, prn))
     order = order[prn[order] >= 0]
