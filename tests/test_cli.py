@@ -492,3 +492,14 @@ def test_a_run_whose_line_cannot_carry_its_rate_says_so_and_counts_the_loss(tmp_
     with caplog.at_level("INFO", logger="virtualgps"):
         assert main([*args, "--baud", "115200"]) == 0  # no reader now
     assert "dropped" not in caplog.records[-1].getMessage()
+
+
+@pytest.mark.parametrize(("duration", "rate", "epochs"), [("1", "5", 5), ("1.5", "2", 3)])
+def test_a_run_of_s_seconds_sends_s_times_rate_epochs(tmp_path, caplog, duration, rate, epochs):
+    """`--duration S` sends the epochs due within S s: S × rate of them, wherever in the second
+    the run starts (a wall-clock timer sent 3 or 4 in 3 s, as it raced the whole seconds)."""
+    args = ["run", "--scene", "none", "--origin", "52.14,11.64,100", "--poses", "demo",
+            "--rate", rate, "--link", str(tmp_path / "gps"), "--duration", duration]
+    with caplog.at_level("INFO", logger="virtualgps"):
+        assert main(args) == 0
+    assert f"stopped after {epochs} epochs" in caplog.records[-1].getMessage()

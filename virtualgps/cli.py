@@ -15,7 +15,6 @@ import os
 import re
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -266,10 +265,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         dev = r.device
         print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
               flush=True)
-    if args.duration is not None:
-        timer = threading.Timer(args.duration, stop.set)
-        timer.daemon = True
-        timer.start()
     status = StatusLine(sys.stdout)
     last_fixes: dict[int, Any] = {}
     shown = [0.0]
@@ -301,8 +296,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             status.show(_fleet_status(receivers, last_fixes))
 
     try:
+        # --duration counts simulated seconds from here, not a wall-clock timer: a timer
+        # races the epochs on whole seconds and sends 3 or 4 of them in 3 s.
+        until = None if args.duration is None else fleet.clock.now_unix_s() + args.duration
         daemon.run_receivers(receivers, fleet.provider, fleet.clock, stop, on_epoch,
-                             waiter=fleet.waiter)
+                             waiter=fleet.waiter, until_unix_s=until)
     finally:
         status.end()
         fleet.close()

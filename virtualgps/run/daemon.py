@@ -496,6 +496,7 @@ def run_receivers(
     on_epoch: Callable[[LiveReceiver, Fixes, int], None] | None = None,
     max_epochs: int | None = None,
     waiter=None,
+    until_unix_s: float | None = None,
 ) -> None:
     """The live loop of one or many receivers: each emits its epochs on whole multiples of its
     period; receivers due at once are simulated together (:func:`epoch_skies`).
@@ -515,6 +516,9 @@ def run_receivers(
     waiter : what the loop waits in: ``wait(deadline_s, fds)`` and ``take_client_ready()``
         (a :class:`virtualgps.run.fleet.ptyloop.PtyLoop` serving the devices; default: ``select``
         on the pose source and the devices' own descriptors)
+    until_unix_s : simulated UTC, s: the loop ends before the first epoch due after it (so
+        ``--duration S`` sends exactly the S × rate epochs due within S s, whatever the phase
+        of the start within a second)
     """
     if waiter is None:
         waiter = _SelectWaiter([m.device for m in members])
@@ -535,6 +539,8 @@ def run_receivers(
             for m in members if ready is None else [by_device[id(d)] for d in ready]:
                 m.service_client()  # (may change a receiver's rate and next epoch)
             t_due = min(m.t_next_unix_s for m in members)
+            if until_unix_s is not None and t_due > until_unix_s + 1e-9:
+                return
             deadline = clock.monotonic_at(t_due)
             if deadline - lead_s <= time.monotonic():
                 break
