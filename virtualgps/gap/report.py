@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from virtualgps.gap import causes as cz
+
 
 @dataclass(frozen=True)
 class RunFigureData:
@@ -207,9 +209,12 @@ def _cause_rows(report: dict) -> list[dict]:
     for c in report.get("causes", []):
         if c["name"] == "truth_offset":
             what = (f"{c['run']}: truth {c['size_m']:.1f} m off (E {c['east_m']:+.1f}, N "
-                    f"{c['north_m']:+.1f} m; p = {c['p_value']:.2g} over {c['blocks']} blocks)"
+                    f"{c['north_m']:+.1f} m; p = {c['p_value']:.2g} over {c['blocks']} blocks"
+                    + (f", T² taken {c['inflation']:.1f}x smaller as the profile's own slow "
+                       "error inflates it" if c.get("inflation", 1.0) > 1.0 else "") + ")"
                     + (": the truth was moved by it before judging" if c["applied"]
-                       else ": not significant, left as it is"))
+                       else ": not significant, left as it is" if c["p_value"] >= cz.OFFSET_P
+                       else f": under {cz.OFFSET_MIN_M:g} m, left as it is"))
         elif c["name"] == "time_offset":
             lo, hi = c["interval_s"]
             what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"

@@ -405,7 +405,6 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
         "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
         "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
-        "causes": [c["name"] for c in report.get("causes", [])
-                   if c.get("applied") or c["name"] == "georeference_model"],
+        "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
         "real": str(trial.real), "truth": trial.truth,
     }

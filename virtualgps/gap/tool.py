@@ -508,8 +508,12 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
         elif c["name"] == "time_offset" and abs(c["lag_s"]) >= 0.2:
             lines.append(f"  cause?: the fixes lag the truth of {c['run']} by "
                          f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
-        elif c["name"] == "georeference_model":
+        elif c["name"] == "georeference_model" and c.get("applied", True):
             lines.append(f"  cause: {c['what']}")
+        elif c["name"] == "georeference_model":
+            lines.append(f"  note: {c['what']}; the log fits it no worse than the exact "
+                         f"conversion (held-out gap {c['gap_flat_earth']:.3f} with it, "
+                         f"{c['gap_exact']:.3f} exact): not a cause here")
         elif c["name"] == "constellations":
             lines.append(f"  cause: {c['run']}: {c['what']}")
     for g in report["located"][:top]:
