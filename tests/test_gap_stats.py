@@ -9,7 +9,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from virtualgps.gap import bands, causes, design, select, where
 from virtualgps.gap import effects as fx
@@ -268,29 +267,58 @@ def test_flat_earth_misplaces_a_far_run_by_tens_of_metres():
     assert causes.georeference([run], "wgs84") is None
 
 
-def test_lag_curvature_tells_a_delay_from_a_filter():
-    """A turning, accelerating vehicle: a pure delay of L leaves K ~ L^2 / 2, a first-order
-    filter of tau ~ tau^2 (its corners rounded)."""
-    dt = 0.1
-    t = np.arange(0, 600, dt)
-    speed = 6 + 4 * np.sin(2 * np.pi * t / 60)
-    heading = 0.3 * np.sin(2 * np.pi * t / 45)
-    vel = np.stack([speed * np.sin(heading), speed * np.cos(heading), 0 * t], 1)
-    pos = np.cumsum(vel * dt, axis=0)
-    lag = 2.0
-    delayed = np.stack([np.interp(t - lag, t, pos[:, a]) for a in range(3)], 1)
-    filt = np.zeros_like(pos)
-    filt[0] = pos[0]
-    a = math.exp(-dt / lag)
-    for k in range(1, t.size):
-        filt[k] = a * filt[k - 1] + (1 - a) * pos[k]
-    acc = where.acceleration_enu_mps2(t, vel)
-    ok = t > 20
-    k_delay = where.lag_curvature_s2((delayed - pos)[None], vel, acc, ok)[0]
-    k_filter = where.lag_curvature_s2((filt - pos)[None], vel, acc, ok)[0]
-    assert k_delay == pytest.approx(lag ** 2 / 2, rel=0.15)
-    assert k_filter == pytest.approx(lag ** 2, rel=0.15)
-    assert stats  # (scipy is the reference the p-values rely on)
+def _turning_track(rng: np.random.Generator, n_s: int = 600):
+    """A car at 15 m/s with turns of 3-15 s, left and right, apart by 10-40 s: (t at 1 Hz,
+    fine t at 0.01 s, fine east/north (m, 2), heading rate per second)."""
+    omega = np.zeros(n_s)
+    k = 20
+    while k < n_s - 20:
+        dur = int(rng.integers(3, 15))
+        omega[k:k + dur] = rng.choice([-1, 1]) * rng.uniform(0.05, 0.2)
+        k += dur + int(rng.integers(10, 40))
+    tf = np.arange(0, n_s, 0.01)
+    heading = np.interp(tf, np.arange(float(n_s)), np.cumsum(omega))
+    en = np.cumsum(15.0 * np.stack([np.sin(heading), np.cos(heading)], 1), axis=0) * 0.01
+    return np.arange(float(n_s)), tf, en, heading
+
+
+def test_corner_cut_tells_a_delay_from_a_filter():
+    """Along a track with short turns: a delay keeps the fixes on the path (c ~ 0, whatever
+    its length), a first-order filter cuts the corners (c growing with tau, under the
+    tau^2 / 2 of a steady turn: these turns last seconds and the slope is high-passed); the
+    receiver's own along-track error does not count, and its cross-track noise adds little."""
+    from virtualgps import geodesy
+
+    rng = np.random.default_rng(1)
+    t, tf, en, heading = _turning_track(rng)
+    pos = np.stack([np.interp(t, tf, en[:, a]) for a in (0, 1)], 1)
+    h = np.interp(t, tf, heading)
+    vel = np.stack([15 * np.sin(h), 15 * np.cos(h), 0 * t], 1)
+    lat, lon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
+                                           np.zeros(t.size), pos[:, 0], pos[:, 1])
+    ok = (t > 25) & (t < t[-1] - 25)
+
+    def cut(fix_en: np.ndarray) -> float:
+        err = np.zeros((1, t.size, 3))
+        err[0, :, :2] = fix_en - pos
+        return float(where.corner_cut_s2(err, lat, lon, t, vel, ok)[0])
+
+    for lag in (1.0, 3.0):
+        assert abs(cut(np.stack([np.interp(t - lag, tf, en[:, a]) for a in (0, 1)], 1))) < 0.1
+    cuts = []
+    for tau in (1.0, 2.5):
+        y = en.copy()
+        a = 1 - math.exp(-0.01 / tau)
+        for i in range(1, len(tf)):
+            y[i] = y[i - 1] + a * (en[i] - y[i - 1])
+        cuts.append(cut(np.stack([np.interp(t, tf, y[:, c]) for c in (0, 1)], 1)))
+    assert 0.15 < cuts[0] and 0.5 < cuts[1] < 2.5 ** 2 / 2  # (under a steady turn's tau^2 / 2)
+    assert cuts[1] > 2 * cuts[0]
+    along = pos + 3.0 * np.stack([np.sin(h), np.cos(h)], 1) * rng.normal(size=(t.size, 1))
+    assert abs(cut(along)) < 0.1
+    assert abs(cut(pos + rng.normal(0, 1.0, pos.shape))) < 0.3
+    straight = np.zeros((1, t.size, 3))  # a straight road has no corners to tell by
+    assert math.isnan(where.corner_cut_s2(straight, lat, lon, t, vel * 0 + [0, 15, 0], ok)[0])
 
 
 def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():

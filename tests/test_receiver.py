@@ -404,6 +404,40 @@ def test_latency_reports_where_the_antenna_was():
     np.testing.assert_allclose(err[:, 1:], 0.0, atol=1e-5)
 
 
+def test_latency_keeps_the_fix_on_the_path_of_a_turn_and_runs_epoch_by_epoch_alike():
+    """A delay puts the fix where the antenna was, on its path: circling at 10 m/s on 50 m
+    (2 m/s^2), 2.5 s late, the fix stays within 0.3 m of the circle (to first order in the
+    velocity alone it ran 6.2 m outside), 25 m back along it. One epoch at a time gives the
+    same fixes, across a gap in the poses (after which the first epoch is first order)."""
+    radius, speed, lat_s, n = 50.0, 10.0, 2.5, 40
+    prof = load_profile("ideal", {"latency": {"enabled": True, "latency_s": lat_s}})
+    sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
+    rx = Receiver(profile=prof, ephemeris=sky, scene=None, georef=GEOREF)
+    t = 1.49e9 + np.arange(float(n))
+    w = speed / radius
+    ang = w * np.arange(float(n))
+    pos = np.stack([radius * np.cos(ang), radius * np.sin(ang), 0 * ang], 1)
+    vel = np.stack([-speed * np.sin(ang), speed * np.cos(ang), 0 * ang], 1)
+    valid = np.ones(n, bool)
+    valid[20] = False
+    batch, _ = simulate(rx, t, pos, vel, valid, ReceiverState(), np.random.default_rng(3))
+    fix = pos + _enu_errors(batch)
+    off_path = np.abs(np.hypot(fix[:, 0], fix[:, 1]) - radius)
+    steady = valid & np.roll(valid, 1)
+    steady[0] = False
+    assert off_path[steady].max() < 0.3
+    assert off_path[21] > 5.0  # the first epoch after the gap: no velocity to difference
+    back = np.hypot(*(fix - pos)[steady, :2].T)
+    np.testing.assert_allclose(back, 2 * radius * np.sin(w * lat_s / 2), rtol=0.02)
+    state, rng = ReceiverState(), np.random.default_rng(3)
+    for i in range(n):
+        one, state = simulate(rx, t[i:i + 1], pos[i:i + 1], vel[i:i + 1], valid[i:i + 1],
+                              state, rng)
+        if valid[i]:
+            assert one.lat_deg[0] == pytest.approx(batch.lat_deg[i], abs=1e-12)
+            assert one.lon_deg[0] == pytest.approx(batch.lon_deg[i], abs=1e-12)
+
+
 def test_nav_filter_lags_a_moving_antenna_by_the_first_order_steady_state():
     tau = 2.0
     _, err = _walk(load_profile("ideal", {"nav_filter": {"enabled": True, "tau_s": tau}}), 1.5)

@@ -136,9 +136,16 @@ def _client(address: str) -> Any:
 
 def worker_count(jobs: int | None = None, dask_address: str | None = None) -> int:
     """How many jobs run at once: the Dask cluster's worker threads, else ``jobs`` local
-    workers (None: one per core). Batches are shaped to several jobs per worker."""
+    workers (None: one per core). Batches are shaped to several jobs per worker (to
+    ``STATS["shape_for"]`` workers where the benchmark sets it)."""
+    if STATS["shape_for"]:
+        return int(STATS["shape_for"])
     if dask_address is not None:
         return max(1, sum(_client(dask_address).nthreads().values()))
+    return _local_workers(jobs)
+
+
+def _local_workers(jobs: int | None) -> int:
     return jobs or os.cpu_count() or 1
 
 
@@ -168,20 +175,42 @@ def map_jobs(
     Whatever ``fn`` raised, for the first failing item (the other jobs are not waited for).
     """
     t0 = time.perf_counter()
+    timed = []
     try:
-        return _map(fn, list(items), jobs, dask_address, progress)
+        timed = _map(_Timed(fn), list(items), jobs, dask_address, progress)
+        return [r for r, _ in timed]
     finally:
         STATS["batches"].append(len(items))
-        STATS["wall_s"] += time.perf_counter() - t0
+        STATS["job_s"].append([s for _, s in timed])
+        STATS["batch_s"].append(time.perf_counter() - t0)
+        STATS["wall_s"] += STATS["batch_s"][-1]
 
 
-# Time spent in map_jobs (the parallel part) and the size of each batch, for the benchmark.
-STATS: dict[str, Any] = {"batches": [], "wall_s": 0.0}
+class _Timed:
+    """A job function that also returns its own run time, s (measured where it runs)."""
+
+    def __init__(self, fn: Callable[[Any], Any]) -> None:
+        self.fn = fn
+
+    def __call__(self, item: Any) -> tuple[Any, float]:
+        t0 = time.perf_counter()
+        out = self.fn(item)
+        return out, time.perf_counter() - t0
+
+
+# For the benchmark: time spent in map_jobs (the parallel part), each batch's size, wall time
+# and its jobs' own run times; ``shape_for``: shape batches for this many workers, whatever runs
+# them (0: the workers that run them), so that a batch's jobs on many workers can be timed on
+# few (tools/bench_gap.py --model).
+STATS: dict[str, Any] = {"batches": [], "job_s": [], "batch_s": [], "wall_s": 0.0,
+                         "shape_for": 0}
 
 
 def reset_stats() -> None:
-    """Start counting :data:`STATS` afresh."""
+    """Start counting :data:`STATS` afresh (``shape_for`` stays)."""
     STATS["batches"] = []
+    STATS["job_s"] = []
+    STATS["batch_s"] = []
     STATS["wall_s"] = 0.0
 
 
@@ -202,7 +231,7 @@ def _map(fn: Callable[[T], R], items: list[T], jobs: int | None, dask_address: s
         if progress is not None:
             progress(total, total)
         return list(out)
-    n = worker_count(jobs)
+    n = _local_workers(jobs)
     if n <= 1 or total <= 1:
         out = []
         for i, item in enumerate(items):

@@ -35,6 +35,8 @@ class ReceiverState:
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
     nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
     hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
+    vel_enu_mps : (3,) the true velocity at the last epoch, where it had a fix (None: none;
+        ``latency``'s second-order term differences it)
     usable_from_t_unix_s : (n_sat,) when each satellite's ephemeris is decoded after a start
         (None: all usable)
     start_bias_enu_m : (3,) metres, the start-up error that decays after the first fix
@@ -55,6 +57,7 @@ class ReceiverState:
     last_alt_hae_m: float = float("nan")
     nav_enu_m: np.ndarray | None = field(default=None, compare=False)
     hold_enu_m: np.ndarray | None = field(default=None, compare=False)
+    vel_enu_mps: np.ndarray | None = field(default=None, compare=False)
     usable_from_t_unix_s: np.ndarray | None = field(default=None, compare=False)
     start_bias_enu_m: np.ndarray | None = field(default=None, compare=False)
     fade_db: np.ndarray | None = field(default=None, compare=False)
@@ -91,6 +94,7 @@ class ReceiverRows:
     last_alt_hae_m: np.ndarray
     nav_enu_m: np.ndarray
     hold_enu_m: np.ndarray
+    vel_enu_mps: np.ndarray
     usable_from_t_unix_s: np.ndarray
     start_bias_enu_m: np.ndarray
     has_start_bias: np.ndarray
@@ -137,6 +141,7 @@ class ReceiverRows:
             last_alt_hae_m=np.array([st.last_alt_hae_m for st in states], float),
             nav_enu_m=rows("nav_enu_m", 3, np.nan),
             hold_enu_m=rows("hold_enu_m", 3, np.nan),
+            vel_enu_mps=rows("vel_enu_mps", 3, np.nan),
             usable_from_t_unix_s=rows("usable_from_t_unix_s", n_sat, -np.inf),
             start_bias_enu_m=rows("start_bias_enu_m", 3, 0.0),
             has_start_bias=np.array([st.start_bias_enu_m is not None for st in states]),
@@ -165,6 +170,7 @@ class ReceiverRows:
         ce, ct = profile.correlated_error, profile.cn0_tracking
         nav = self.nav_enu_m[i]
         hold = self.hold_enu_m[i]
+        vel = self.vel_enu_mps[i]
         usable = self.usable_from_t_unix_s[i]
         return ReceiverState(
             n_epochs=int(self.n_epochs[i]),
@@ -174,6 +180,7 @@ class ReceiverRows:
             last_alt_hae_m=float(self.last_alt_hae_m[i]),
             nav_enu_m=nav if not np.isnan(nav[0]) else None,
             hold_enu_m=hold if not np.isnan(hold[0]) else None,
+            vel_enu_mps=vel if not np.isnan(vel[0]) else None,
             usable_from_t_unix_s=usable if usable.size and usable[0] != -np.inf else None,
             start_bias_enu_m=self.start_bias_enu_m[i] if self.has_start_bias[i] else None,
             fade_db=self.fade_db[i] if ct.enabled else None,
