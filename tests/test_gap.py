@@ -427,3 +427,47 @@ def test_real_log_bases_find_an_injected_filter_and_a_wrong_truth(shared_data, t
     assert off["success"] and "truth_offset" in off["causes"], off
     result = selfcheck.summarise(rows, dg.Options(seeds=12))
     assert result["confusion"]["real:gsdc:nav_filter"] == {"nav_filter": 1}
+
+
+def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
+    """A batch with few jobs splits their seeds over more jobs: the units' scores (gap, every
+    metric's distance, the per-PRN and per-sky-bin counts) are the same to the bit as from one
+    job over all the seeds (the seed-against-seed agreement is paired over all of them)."""
+    from virtualgps.gap import simulator as sm
+    from virtualgps.gap import tool
+    from virtualgps.gap.runs import prepare_runs
+    from virtualgps.receiver.profiles import build_profile
+    from virtualgps.sky import ephemeris as eph
+
+    inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
+                         truth=("static",), scene="none", tle=None, profile="holux-m1000")
+    runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
+    ephem = tool._ephemeris(tle)
+
+    def shift(t0: float) -> float:
+        return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, tool.SKY_SHIFT_MAX_DAYS)
+
+    prepared = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source), shift,
+                            1, None)
+    key = sm.share_runs(prepared)[0]
+    t = prepared[0].view.t_unix_s
+    units = (t < t[t.size // 2], t >= t[t.size // 2])
+    # (weak signals, so that the seeds track differently: open sky tracks all alike)
+    prof = build_profile(fx.apply(table, {"cn0_tracking": {"cn0_zenith_dbhz": 24.0}}), source)
+
+    def job(seeds):
+        return sm.gap_job(sm.GapJob(key, prof, seeds, units, prn=True, bins=True))
+
+    whole = job((0, 1, 2, 3, 4))
+    split = [job((0, 1)), job((2, 3, 4))]
+    for u in range(2):
+        merged = where.merge_stats([split[0][u].stats, split[1][u].stats])
+        assert merged.sim.keys() == whole[u].stats.sim.keys()
+        assert merged.real == whole[u].stats.real
+        for m, values in whole[u].stats.sim.items():
+            np.testing.assert_array_equal(merged.sim[m], values, err_msg=m)
+        a = sm.unit_score([whole[u]])
+        b = sm.unit_score([split[0][u], split[1][u]])
+        assert "tracked_agreement" in a.parts and a.gap == b.gap and a.parts == b.parts
+        np.testing.assert_array_equal(a.prn, b.prn)
+        np.testing.assert_array_equal(a.bins, b.bins)

@@ -3,9 +3,12 @@ and batched requests (DESIGN 7.2).
 
 A request names a profile table, a seed set and runs; everything missing is simulated in one
 batch of jobs (one job per table, seed set and run: the run simulated once per seed over all its
-epochs, and every unit of the run scored where the job runs, so only the scores come back). The
-selections of a diagnosis (the full one and one per outer fold) ask together, so a batch holds
-every candidate's grid for every fold at once.
+epochs, and every unit of the run measured where the job runs, so only the units' statistics
+come back, to be scored here). The selections of a diagnosis (the full one and one per outer
+fold) ask together, so a batch holds every candidate's grid for every fold at once. A batch of
+fewer jobs than several per worker splits each job's seeds into groups, one job each: every
+seed is its own generator, and the groups' statistics are joined before scoring
+(:func:`virtualgps.gap.where.merge_stats`), so the scores do not depend on the split.
 
 Seed sets. Set 0 fits parameters, set 1 measures the held-out gap of what set 0 fitted (with
 common random numbers the same seeds would carry the fit's luck from a run's training blocks
@@ -29,15 +32,18 @@ from virtualgps.gap.jobs import map_jobs, share, shared, worker_count
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.where import (
     SCORE_METRICS,
+    SegmentStats,
     bin_tracking,
     errors_enu,
     gap_score,
+    merge_stats,
     prn_tracking,
     segment_stats,
+    tracking_means,
 )
 
 FIT, HELD, OUTER = 0, 1, 2  # seed sets
-MIN_JOBS_PER_WORKER = 3  # a smaller batch is split by unit
+MIN_JOBS_PER_WORKER = 3  # a smaller batch has its jobs' seeds split
 
 
 @dataclass(frozen=True)
@@ -53,8 +59,32 @@ class UnitScore:
 
 
 @dataclass(frozen=True)
+class UnitPart:
+    """What a job measures of one unit for its seeds: the statistics and, where asked, the
+    tracking counts per PRN and per sky bin (:func:`virtualgps.gap.where.prn_tracking`,
+    :func:`virtualgps.gap.where.bin_tracking`: fixed parts and per-seed parts)."""
+
+    stats: SegmentStats
+    prn: tuple[np.ndarray, np.ndarray] | None = None
+    bins: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def unit_score(parts: list[UnitPart]) -> UnitScore:
+    """One unit's score from its parts over seed groups (in seed order)."""
+    gap, by_metric = gap_score(merge_stats([p.stats for p in parts]))
+
+    def means(which: str) -> np.ndarray | None:
+        got = [getattr(p, which) for p in parts]
+        if got[0] is None:
+            return None
+        return tracking_means(got[0][0], np.concatenate([g[1] for g in got], axis=-2))
+
+    return UnitScore(gap, by_metric, means("prn"), means("bins"))
+
+
+@dataclass(frozen=True)
 class GapJob:
-    """Simulate one run with one profile for some seeds and score some of its units there.
+    """Simulate one run with one profile for some seeds and measure some of its units there.
 
     run : the key under which the run (setup, view, real errors) was shared with the workers
     (:func:`share_runs`); profile, seeds : what to simulate; units : (n,) bool masks of the
@@ -78,18 +108,15 @@ def share_runs(runs: list[Run]) -> list[str]:
     return keys
 
 
-def gap_job(j: GapJob) -> list[UnitScore]:
-    """The score of each asked unit of a run (see :class:`GapJob`)."""
+def gap_job(j: GapJob) -> list[UnitPart]:
+    """What each asked unit of a run shows under the job's seeds (see :class:`GapJob`)."""
     setup, view, err_real = shared(j.run)
     sims = sim_obs(simulate_job(EnsembleJob(setup, j.profile, j.seeds)), view)
     err = errors_enu(view, sims)
-    out = []
-    for m in j.units:
-        gap, parts = gap_score(segment_stats(view, sims, err_real, err, m,
-                                             metrics=SCORE_METRICS))
-        out.append(UnitScore(gap, parts, prn_tracking(view, sims, m) if j.prn else None,
-                             bin_tracking(view, sims, m) if j.bins else None))
-    return out
+    return [UnitPart(segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS),
+                     prn_tracking(view, sims, m) if j.prn else None,
+                     bin_tracking(view, sims, m) if j.bins else None)
+            for m in j.units]
 
 
 def table_key(table: dict[str, Any]) -> str:
@@ -144,27 +171,32 @@ class Simulator:
         if not todo:
             return
         # A batch of fewer jobs than several per worker leaves workers idle while its slowest
-        # job runs: its jobs are then split by unit (each simulates the run again and scores
-        # one unit; scoring is most of a job).
+        # job runs: its jobs' seeds are then split into groups, a job each (no seed is
+        # simulated twice).
         workers = self.workers()
-        split = workers > 1 and len(todo) < MIN_JOBS_PER_WORKER * workers
+        groups = 1
+        if workers > 1 and len(todo) < MIN_JOBS_PER_WORKER * workers:
+            groups = -(-MIN_JOBS_PER_WORKER * workers // len(todo))
         profiles: dict[str, Any] = {}
         jobs, owners = [], []
         for (key, seed_set, r), (table, us) in todo.items():
             if key not in profiles:
                 profiles[key] = fx.build(table, self.source)
-            groups = [[u] for u in sorted(us)] if split else [sorted(us)]
-            for order in groups:
-                jobs.append(GapJob(self.keys[r], profiles[key], self.seeds(seed_set),
+            order = sorted(us)
+            for seeds in split_seeds(self.seeds(seed_set), groups):
+                jobs.append(GapJob(self.keys[r], profiles[key], seeds,
                                    tuple(self.units[u].mask for u in order),
                                    prn=seed_set == HELD, bins=seed_set == FIT and self.bins))
-                owners.append((key, seed_set, r, order))
+                owners.append((key, seed_set, order))
         self.batches.append(len(jobs))
         res = map_jobs(gap_job, jobs, jobs=self.jobs, dask_address=self.dask)
-        for (key, seed_set, r, order), scores, j in zip(owners, res, jobs, strict=True):
-            self.n_sims += len(j.seeds) * self.runs[r].setup.t_unix_s.size
-            for u, sc in zip(order, scores, strict=True):
-                self._scores[(key, seed_set, u)] = sc
+        parts: dict[tuple[str, int, int], list[UnitPart]] = {}
+        for (key, seed_set, order), unit_parts, j in zip(owners, res, jobs, strict=True):
+            self.n_sims += len(j.seeds) * self.runs[self.units[order[0]].run].setup.t_unix_s.size
+            for u, part in zip(order, unit_parts, strict=True):
+                parts.setdefault((key, seed_set, u), []).append(part)
+        for k, unit_parts in parts.items():  # (the jobs came back in seed order)
+            self._scores[k] = unit_score(unit_parts)
 
     def workers(self) -> int:
         """The workers jobs go to (local processes, or the Dask cluster's threads)."""

@@ -294,49 +294,62 @@ def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) 
     return np.where(w[None, :] > 0, frac, np.nan), w
 
 
-def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray) -> np.ndarray:
-    """Per PRN over a segment: compared satellite-epochs, tracked by the real receiver, tracked
-    by the simulation (mean over seeds). Pooled over held-out units these give the per-PRN
-    tracking disagreement (:func:`pooled_tracking_disagreement`).
-
-    Returns (3, k) float (zeros without GSV/SNR in the real log)
-    """
-    out = np.zeros((3, view.prn.size))
+def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per PRN over a segment: compared satellite-epochs and those tracked by the real
+    receiver, (2, k); tracked by each seed, (s, k). :func:`tracking_means` makes of them the
+    (3, k) counts that, pooled over held-out units, give the per-PRN tracking disagreement
+    (:func:`pooled_tracking_disagreement`). Zeros without GSV/SNR in the real log."""
+    fixed = np.zeros((2, view.prn.size))
+    per_seed = np.zeros((sims.tracked.shape[0], view.prn.size))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
-        return out
+        return fixed, per_seed
     m = view.sat_ok & (epochs & view.valid)[:, None]
-    out[0] = m.sum(axis=0)
-    out[1] = (view.real.tracked[0] & m).sum(axis=0)
-    out[2] = (sims.tracked & m[None]).sum(axis=1).mean(axis=0)
-    return out
+    fixed[0] = m.sum(axis=0)
+    fixed[1] = (view.real.tracked[0] & m).sum(axis=0)
+    per_seed[:] = (sims.tracked & m[None]).sum(axis=1)
+    return fixed, per_seed
 
 
 SKY_BIN_AZ_DEG = 30.0  # the sky bins a learned sky mask is made of
 SKY_BIN_EL_DEG = 15.0
 
 
-def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray) -> np.ndarray:
+def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Per sky bin (SKY_BIN_EL_DEG x SKY_BIN_AZ_DEG, rows from the horizon up, azimuth from
-    north): compared satellite-epochs, tracked by the real receiver, tracked by the simulation
-    (mean over seeds), and the sums of the tracked satellites' SNR, real and simulated (mean
-    over seeds); what a learned sky mask is made from.
-
-    Returns (5, n_el * n_az) float (zeros without GSV/SNR in the real log)
-    """
+    north): compared satellite-epochs, tracked by the real receiver, the real tracked
+    satellites' SNR sum, (3, n_el * n_az); and per seed the tracked satellite-epochs and their
+    SNR sum, (2, s, n_el * n_az). :func:`tracking_means` makes of them what a learned sky mask
+    is made from. Zeros without GSV/SNR in the real log."""
     n_az, n_el = int(360 / SKY_BIN_AZ_DEG), int(90 / SKY_BIN_EL_DEG)
-    out = np.zeros((5, n_el * n_az))
+    nb = n_el * n_az
+    s = sims.tracked.shape[0]
+    fixed, per_seed = np.zeros((3, nb)), np.zeros((2, s, nb))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
-        return out
+        return fixed, per_seed
     m = view.sat_ok & (epochs & view.valid)[:, None]
     r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
     c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0, n_az - 1)
     b = (r * n_az + c)[m]
     real_cn0 = np.where(view.real.tracked[0], view.real.cn0_dbhz[0], 0.0)[m]
-    sim_cn0 = np.where(sims.tracked, sims.cn0_dbhz, 0.0)[:, m].mean(axis=0)
-    for row, w in enumerate((None, view.real.tracked[0][m], sims.tracked[:, m].mean(axis=0),
-                             np.nan_to_num(real_cn0), np.nan_to_num(sim_cn0))):
-        out[row] = np.bincount(b, weights=w, minlength=n_el * n_az)
-    return out
+    for row, w in enumerate((None, view.real.tracked[0][m], np.nan_to_num(real_cn0))):
+        fixed[row] = np.bincount(b, weights=w, minlength=nb)
+    seed_b = (np.arange(s)[:, None] * nb + b[None, :]).ravel()  # one bincount for all seeds
+    sim_cn0 = np.nan_to_num(np.where(sims.tracked, sims.cn0_dbhz, 0.0)[:, m])
+    for row, w in enumerate((sims.tracked[:, m].astype(float), sim_cn0)):
+        per_seed[row] = np.bincount(seed_b, weights=w.ravel(), minlength=s * nb).reshape(s, nb)
+    return fixed, per_seed
+
+
+def tracking_means(fixed: np.ndarray, per_seed: np.ndarray) -> np.ndarray:
+    """The counts of :func:`prn_tracking` ((3, k): compared, real, mean over seeds) or of
+    :func:`bin_tracking` ((5, n_bins): compared, real tracked, simulated tracked, real SNR sum,
+    simulated SNR sum, the simulated ones means over seeds) from their parts."""
+    if fixed.shape[0] == 2:
+        return np.vstack([fixed, per_seed.mean(axis=0)[None]])
+    mean = per_seed.mean(axis=1)
+    return np.vstack([fixed[:2], mean[:1], fixed[2:], mean[1:]])
 
 
 def pooled_tracking_disagreement(counts: list[np.ndarray]) -> float:
@@ -513,12 +526,34 @@ class SegmentStats:
 
     real : {metric: float}; sim : {metric: (s,) float}; pair : the real-vs-simulated values of
     the pairwise metrics ({metric: (s,)}); for those ``sim`` holds simulated-vs-simulated
-    values (seed i against seed i + 1)
+    values (seed i against seed i - 1); fractions : ``tracked_agreement``'s per-seed tracked
+    fractions (s, k) and weights (k,), from which :func:`merge_stats` pairs the seeds again
     """
 
     real: dict[str, float]
     sim: dict[str, np.ndarray]
     pair: dict[str, np.ndarray]
+    fractions: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def merge_stats(parts: list[SegmentStats]) -> SegmentStats:
+    """One segment's statistics over the seeds of several jobs (seed groups, in seed order):
+    the same, to the bit, as one job over all the seeds (per-seed values are joined; the
+    seed-against-seed values are paired again over all of them, and a pairwise metric's real
+    value is its median against all of them)."""
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    sim = {m: np.concatenate([p.sim[m] for p in parts]) for m in first.sim}
+    pair = {m: np.concatenate([p.pair[m] for p in parts]) for m in first.pair}
+    # a pairwise metric's real value is its median against every seed
+    real = dict(first.real) | {m: float(np.nanmedian(v)) for m, v in pair.items()}
+    fractions = None
+    if first.fractions is not None:
+        fs = np.concatenate([p.fractions[0] for p in parts])
+        fractions = (fs, first.fractions[1])
+        sim["tracked_agreement"] = 1.0 - _disagreement(fs, np.roll(fs, 1, 0), fractions[1])
+    return SegmentStats(real, sim, pair, fractions)
 
 
 def segment_stats(
@@ -551,6 +586,7 @@ def segment_stats(
         return want is None or name in want
 
     real, sim, pair = {}, {}, {}
+    fractions = None
     t = view.t_unix_s
     epochs = epochs & view.valid
     sat_mask = view.sat_ok & epochs[:, None] if sats is None else view.sat_ok & sats
@@ -657,6 +693,7 @@ def segment_stats(
                 real["tracked_agreement"] = float(np.nanmedian(rp))
                 pair["tracked_agreement"] = rp
                 sim["tracked_agreement"] = 1.0 - _disagreement(fs, np.roll(fs, 1, 0), w)
+                fractions = (fs, w)
         if wanted("tracked_share") and view.assess.get("cn0"):
             def share(o: Obs) -> np.ndarray:
                 return (o.tracked & sat_mask[None]).sum(axis=(1, 2)) / sat_mask.sum()
@@ -669,7 +706,7 @@ def segment_stats(
             def used_el(o: Obs) -> np.ndarray:
                 return binned_quantile(el_deg, o.used & sat_mask[None], 0.05, 0.1, 90.0)
             put("used_el_p05_deg", used_el(real_obs), used_el(sims))
-    return SegmentStats(real, sim, pair)
+    return SegmentStats(real, sim, pair, fractions)
 
 
 def gap_score(stats: SegmentStats) -> tuple[float, dict[str, float]]:
