@@ -16,7 +16,7 @@ import pytest
 
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.gap import runs, select, where
+from virtualgps.gap import motion, runs, select, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
 from virtualgps.poses.pose import PoseTrack
 from virtualgps.receiver.profiles import build_profile, load_profile, load_profile_dict
@@ -63,7 +63,7 @@ def test_lag_recovers_a_known_latency():
     heading = 0.02 * t
     vel = np.stack([5 * np.sin(heading), 5 * np.cos(heading), 0 * t], axis=1)
     err = np.array([2.0, -1.0, 0.0]) - 1.3 * vel + rng.normal(0, 1.0, (600, 3))
-    lag = where.lag_s(err[None], vel, np.ones(600, bool))
+    lag = motion.lag_s(err[None], vel, np.ones(600, bool))
     assert lag[0] == pytest.approx(1.3, abs=0.05)
 
 
@@ -456,7 +456,7 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
     prof = build_profile(fx.apply(table, {"cn0_tracking": {"cn0_zenith_dbhz": 24.0}}), source)
 
     def job(seeds):
-        return sm.gap_job(sm.GapJob(key, prof, seeds, units, prn=True, bins=True))
+        return sm.gap_job(sm.GapJob(key, prof, seeds, units, prn=True, bins=True, whole=False))
 
     whole = job((0, 1, 2, 3, 4))
     split = [job((0, 1)), job((2, 3, 4))]
@@ -467,6 +467,9 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
         for m, values in whole[u].stats.sim.items():
             np.testing.assert_array_equal(merged.sim[m], values, err_msg=m)
         a = sm.unit_score([whole[u]])
+        in_job = sm.gap_job(sm.GapJob(key, prof, (0, 1, 2, 3, 4), units, True, True))[u]
+        assert (in_job.gap, in_job.parts) == (a.gap, a.parts)
+        np.testing.assert_array_equal(in_job.bins, a.bins)
         b = sm.unit_score([split[0][u], split[1][u]])
         assert "tracked_agreement" in a.parts and a.gap == b.gap and a.parts == b.parts
         np.testing.assert_array_equal(a.prn, b.prn)

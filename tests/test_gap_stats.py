@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from virtualgps.gap import bands, causes, design, select, where
+from virtualgps.gap import bands, causes, design, motion, select, where
 from virtualgps.gap import effects as fx
 
 
@@ -301,7 +301,7 @@ def test_corner_cut_tells_a_delay_from_a_filter():
     def cut(fix_en: np.ndarray) -> float:
         err = np.zeros((1, t.size, 3))
         err[0, :, :2] = fix_en - pos
-        return float(where.corner_cut_s2(err, lat, lon, t, vel, ok)[0])
+        return float(motion.corner_cut_s2(err, lat, lon, t, vel, ok)[0])
 
     for lag in (1.0, 3.0):
         assert abs(cut(np.stack([np.interp(t - lag, tf, en[:, a]) for a in (0, 1)], 1))) < 0.1
@@ -318,7 +318,7 @@ def test_corner_cut_tells_a_delay_from_a_filter():
     assert abs(cut(along)) < 0.1
     assert abs(cut(pos + rng.normal(0, 1.0, pos.shape))) < 0.3
     straight = np.zeros((1, t.size, 3))  # a straight road has no corners to tell by
-    assert math.isnan(where.corner_cut_s2(straight, lat, lon, t, vel * 0 + [0, 15, 0], ok)[0])
+    assert math.isnan(motion.corner_cut_s2(straight, lat, lon, t, vel * 0 + [0, 15, 0], ok)[0])
 
 
 def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():
@@ -330,10 +330,10 @@ def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant(
     vel = np.stack([5 * np.cos(heading), 5 * np.sin(heading), 0 * t], axis=1)
     err = -2.0 * vel + rng.normal(0, 1.0, (300, 3)) + [3.0, -1.0, 0.0]
     moving = np.ones(300, bool)
-    assert where.lag_s(err[None], vel, moving)[0] == pytest.approx(2.0, abs=0.1)
+    assert motion.lag_s(err[None], vel, moving)[0] == pytest.approx(2.0, abs=0.1)
     straight = np.tile([0.0, 1.0, 0.0], (300, 1))
     err = -2.0 * straight + rng.normal(0, 1.0, (300, 3))
-    assert np.isnan(where.lag_s(err[None], straight, moving)[0])
+    assert np.isnan(motion.lag_s(err[None], straight, moving)[0])
 
 
 def test_systems_the_simulation_lacks_are_named_as_a_cause():

@@ -31,8 +31,9 @@ import numpy as np
 from scipy import special
 
 from virtualgps import geodesy
+from virtualgps.gap.motion import lag_s
 from virtualgps.gap.runs import Run
-from virtualgps.gap.where import MOVING_MPS, errors_enu, lag_s
+from virtualgps.gap.where import MOVING_MPS, errors_enu
 from virtualgps.sky import systems
 
 OFFSET_P = 0.01  # a truth offset is named at this level (it moves the truth for the rest)

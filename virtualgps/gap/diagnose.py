@@ -26,11 +26,11 @@ from scipy import special
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import MAX_INNER, Design
 from virtualgps.gap.ensemble import Ensemble
+from virtualgps.gap.motion import LAG_MIN_VEL_RMS_MPS
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.select import Request, Selection, drive, select
 from virtualgps.gap.simulator import OUTER, Simulator
 from virtualgps.gap.where import (
-    LAG_MIN_VEL_RMS_MPS,
     Obs,
     RunView,
     errors_enu,
@@ -237,7 +237,7 @@ def not_assessed(runs: list[Run]) -> list[dict]:
 
 def _velocity_varies(run: Run) -> bool:
     """Whether the run's moving truth varies its velocity enough for
-    :func:`~virtualgps.gap.where.lag_s`."""
+    :func:`~virtualgps.gap.motion.lag_s`."""
     v = run.view
     moving = v.valid & (v.speed_mps >= 0.3)
     vel = v.vel_enu_mps[moving, :2]

@@ -88,7 +88,9 @@ class GapJob:
 
     run : the key under which the run (setup, view, real errors) was shared with the workers
     (:func:`share_runs`); profile, seeds : what to simulate; units : (n,) bool masks of the
-    units to score; prn, bins : also count tracking per PRN, per sky bin
+    units to score; prn, bins : also count tracking per PRN, per sky bin; whole : the seeds
+    are the whole seed set, so the units are scored where the job runs (else their
+    statistics come back, to be joined with the other seed groups' and scored)
     """
 
     run: str
@@ -97,6 +99,7 @@ class GapJob:
     units: tuple[np.ndarray, ...]
     prn: bool = False
     bins: bool = False
+    whole: bool = True
 
 
 def share_runs(runs: list[Run]) -> list[str]:
@@ -108,15 +111,18 @@ def share_runs(runs: list[Run]) -> list[str]:
     return keys
 
 
-def gap_job(j: GapJob) -> list[UnitPart]:
-    """What each asked unit of a run shows under the job's seeds (see :class:`GapJob`)."""
+def gap_job(j: GapJob) -> list[UnitScore] | list[UnitPart]:
+    """Each asked unit of a run under the job's seeds (see :class:`GapJob`): its score, or
+    (a seed group's job) what it shows."""
     setup, view, err_real = shared(j.run)
     sims = sim_obs(simulate_job(EnsembleJob(setup, j.profile, j.seeds)), view)
     err = errors_enu(view, sims)
-    return [UnitPart(segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS),
-                     prn_tracking(view, sims, m) if j.prn else None,
-                     bin_tracking(view, sims, m) if j.bins else None)
-            for m in j.units]
+    parts = [UnitPart(segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS),
+                      prn_tracking(view, sims, m) if j.prn else None,
+                      bin_tracking(view, sims, m) if j.bins else None)
+             for m in j.units]
+    # Scored here where it can be: in the main process the scoring is serial time.
+    return [unit_score([p]) for p in parts] if j.whole else parts
 
 
 def table_key(table: dict[str, Any]) -> str:
@@ -183,18 +189,23 @@ class Simulator:
             if key not in profiles:
                 profiles[key] = fx.build(table, self.source)
             order = sorted(us)
-            for seeds in split_seeds(self.seeds(seed_set), groups):
+            seed_groups = split_seeds(self.seeds(seed_set), groups)
+            for seeds in seed_groups:
                 jobs.append(GapJob(self.keys[r], profiles[key], seeds,
                                    tuple(self.units[u].mask for u in order),
-                                   prn=seed_set == HELD, bins=seed_set == FIT and self.bins))
+                                   prn=seed_set == HELD, bins=seed_set == FIT and self.bins,
+                                   whole=len(seed_groups) == 1))
                 owners.append((key, seed_set, order))
         self.batches.append(len(jobs))
         res = map_jobs(gap_job, jobs, jobs=self.jobs, dask_address=self.dask)
         parts: dict[tuple[str, int, int], list[UnitPart]] = {}
-        for (key, seed_set, order), unit_parts, j in zip(owners, res, jobs, strict=True):
+        for (key, seed_set, order), got, j in zip(owners, res, jobs, strict=True):
             self.n_sims += len(j.seeds) * self.runs[self.units[order[0]].run].setup.t_unix_s.size
-            for u, part in zip(order, unit_parts, strict=True):
-                parts.setdefault((key, seed_set, u), []).append(part)
+            for u, one in zip(order, got, strict=True):
+                if j.whole:
+                    self._scores[(key, seed_set, u)] = one
+                else:
+                    parts.setdefault((key, seed_set, u), []).append(one)
         for k, unit_parts in parts.items():  # (the jobs came back in seed order)
             self._scores[k] = unit_score(unit_parts)
 
