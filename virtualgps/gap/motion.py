@@ -80,13 +80,14 @@ def path_offset_m(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray, truth_lon_de
     dt = epoch_step_s(t_unix_s)
     stride = max(1, int(round(1.0 / dt)))
     reach = int(math.ceil(CUT_WINDOW_S / dt))
+    lat_rad, lon_rad = np.radians(truth_lat_deg), np.radians(truth_lon_deg)
     m_m, n_m = geodesy.radii_of_curvature_m(truth_lat_deg[idx])
-    lat0, lon0 = np.radians(truth_lat_deg[idx]), np.radians(truth_lon_deg[idx])
+    lat0, lon0 = lat_rad[idx], lon_rad[idx]
+    east_per_rad = n_m * np.cos(lat0)
 
     def rel(j: int) -> np.ndarray:  # (m, 2) truth at epoch k + j less at k, local metres
         i = np.clip(idx + j, 0, n - 1)
-        return np.stack([n_m * np.cos(lat0) * (np.radians(truth_lon_deg[i]) - lon0),
-                         m_m * (np.radians(truth_lat_deg[i]) - lat0)], axis=1)
+        return np.stack([east_per_rad * (lon_rad[i] - lon0), m_m * (lat_rad[i] - lat0)], axis=1)
 
     f = err_enu_m[:, idx, :2]
     best = np.full(f.shape[:2], np.inf)

@@ -517,10 +517,10 @@ def segment_stats(
             put("lag_s", lag_s(err_real, view.vel_enu_mps, moving),
                 lag_s(err_sim, view.vel_enu_mps, moving))
         if moving.sum() >= 30 and wanted("corner_cut_s2"):
-            def cut(e: np.ndarray) -> np.ndarray:
-                return corner_cut_s2(e, view.truth_lat_deg, view.truth_lon_deg, t,
-                                     view.vel_enu_mps, moving)
-            put("corner_cut_s2", cut(err_real), cut(err_sim))
+            # (real and seeds in one call: the path's chords are made once)
+            cut = corner_cut_s2(np.concatenate((err_real, err_sim)), view.truth_lat_deg,
+                                view.truth_lon_deg, t, view.vel_enu_mps, moving)
+            put("corner_cut_s2", cut[:1], cut[1:])
         if wanted("eq4_deg"):
             def eq4(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
                 return row_quantile(_eq4_deg(a_lat, a_lon, b_lat, b_lon), 0.5)

@@ -155,12 +155,12 @@ def output_stage(
     Returns
     -------
     err_enu_m : (n_t, 3) metres, error of the position output
-    state_update : new ``nav_enu_m``, ``hold_enu_m`` and ``vel_enu_mps``
+    state_update : new ``nav_enu_m``, ``hold_enu_m`` and (with ``latency``) ``vel_enu_mps``
     """
     out = truth_enu_m + err_enu_m
     update: dict[str, np.ndarray | None] = {}
-    acc, update["vel_enu_mps"] = _acceleration(vel_enu_mps, dt_s, has_fix, state)
     if prof.latency.enabled:
+        acc, update["vel_enu_mps"] = _acceleration(vel_enu_mps, dt_s, has_fix, state)
         # Where the antenna was latency_s ago, to second order: x - v L + a L^2 / 2. To first
         # order alone the fix left the path on the outside of every turn by a L^2 / 2 (3.6 m
         # at 1 m/s^2 and 2.7 s), which a delay never does: it stays on the path.

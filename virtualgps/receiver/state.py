@@ -35,8 +35,8 @@ class ReceiverState:
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
     nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
     hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
-    vel_enu_mps : (3,) the true velocity at the last epoch, where it had a fix (None: none;
-        ``latency``'s second-order term differences it)
+    vel_enu_mps : (3,) the true velocity at the last epoch, where it had a fix (None: none, or
+        no ``latency``, whose second-order term differences it)
     usable_from_t_unix_s : (n_sat,) when each satellite's ephemeris is decoded after a start
         (None: all usable)
     start_bias_enu_m : (3,) metres, the start-up error that decays after the first fix
