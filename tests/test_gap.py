@@ -474,3 +474,31 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
         assert "tracked_agreement" in a.parts and a.gap == b.gap and a.parts == b.parts
         np.testing.assert_array_equal(a.prn, b.prn)
         np.testing.assert_array_equal(a.bins, b.bins)
+
+
+def test_the_choice_does_not_depend_on_how_jobs_are_cut_or_when_they_finish(tmp_path):
+    """The selections go on each as its own jobs come back: on one worker (jobs in order,
+    whole seed sets) and on 16 modelled workers (seed sets cut into groups, jobs finishing in
+    the order of their own run times) the diagnosis is the same."""
+    from virtualgps.gap import jobs, synthetic, tool
+    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.sky.ephemeris import default_tle_path
+    from virtualgps.sky.scene import load_scene
+
+    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
+    scene = load_scene(scene_dir)
+    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
+                              str(default_tle_path()))
+    inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene="none", tle=tr.tle,
+                         profile=str(tr.profile))
+    opts = dg.Options(seeds=6, jobs=1, effects=("latency", "nav_filter"))
+    one, _, _ = tool.diagnose(inp, opts)
+    jobs.model(16)
+    try:
+        many, _, _ = tool.diagnose(inp, opts)
+    finally:
+        jobs.model(None)
+    assert sum(many["batches"]) > 2 * sum(one["batches"])  # (seed sets cut into groups)
+    for k in ("effects", "outer", "gap_baseline", "gap_final", "selection_rounds"):
+        assert many[k] == one[k], k
+    assert one["effects"] and one["effects"][0]["name"] == "latency"

@@ -174,3 +174,51 @@ def test_every_worker_is_set_up_once(dask_cluster):
             assert jobs.map_jobs(_read_shared, ["test:a"] * 2, **kw)[0][0] == 10.0
     finally:
         jobs.unshare(["test:a"])
+
+
+def _nap(s: float) -> float:
+    time.sleep(s)
+    return s
+
+
+def test_a_queue_hands_back_each_job_as_it_finishes():
+    q = jobs.JobQueue(_nap, jobs=2)
+    q.submit([("slow", 1.0), ("quick", 0.05)])
+    first = q.wait()
+    assert first == [("quick", 0.05)] and q.pending() == 1
+    q.submit([("later", 0.0)])  # submitted while the slow job still runs
+    got = []
+    while q.pending():
+        got += q.wait()
+    assert sorted(got) == [("later", 0.0), ("slow", 1.0)]
+
+
+def test_a_failing_job_in_a_queue_reaches_the_caller():
+    q = jobs.JobQueue(_boom, jobs=2)
+    q.submit([(i, i) for i in range(6)])
+    with pytest.raises(ValueError, match="job 3 failed"):
+        while q.pending():
+            q.wait()
+
+
+def test_the_model_of_many_workers_plays_their_clock():
+    """Jobs of known length on two modelled workers: each to the first free one in submission
+    order, the main process's own time on the same clock."""
+    jobs.model(2)
+    try:
+        assert jobs.worker_count(jobs=1) == 2
+        q = jobs.JobQueue(_nap, jobs=1)
+        q.submit([("a", 0.3), ("b", 0.1), ("c", 0.1), ("d", 0.1)])
+        assert q.busy() == 4  # (run already, but not done by the model's clock)
+        assert [t for t, _ in q.wait()] == ["b"]  # at 0.1 s
+        time.sleep(0.15)  # the main process's own work, to 0.25 s: "c" is done meanwhile
+        assert [t for t, _ in q.wait()] == ["c"]
+        rest = []
+        while q.pending():  # "a" and "d" at 0.3 s
+            rest += [t for t, _ in q.wait()]
+        assert sorted(rest) == ["a", "d"]
+        wall_s, serial_s = jobs.model_times_s()
+    finally:
+        jobs.model(None)
+    assert wall_s == pytest.approx(0.3, abs=0.03)
+    assert serial_s == pytest.approx(0.15, abs=0.03)

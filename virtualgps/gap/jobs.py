@@ -2,20 +2,22 @@
 default: one per core), or on a Dask cluster (``--dask tcp://HOST:8786``).
 
 Jobs are deterministic functions of their item (each carries its seeds), so the three give the
-same results in the same order. Local workers are forked once per process and reused: the gap
-tool maps hundreds of small batches while fitting, and workers keep module-level caches (a
-run's sky, the loaded scene and TLE set) between jobs.
-"""
+same results. :func:`map_jobs` runs a list of jobs; a :class:`JobQueue` takes jobs as they
+become known and hands each back as it finishes (the gap tool's selections each go on when
+their own jobs are back). Local workers are forked once per process and reused: the gap tool
+submits thousands of small jobs while fitting, and workers keep module-level caches (a run's
+sky, the loaded scene and TLE set) between jobs."""
 
 from __future__ import annotations
 
 import atexit
+import concurrent.futures
 import multiprocessing
 import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
 from virtualgps.exceptions import ConfigError
@@ -136,10 +138,10 @@ def _client(address: str) -> Any:
 
 def worker_count(jobs: int | None = None, dask_address: str | None = None) -> int:
     """How many jobs run at once: the Dask cluster's worker threads, else ``jobs`` local
-    workers (None: one per core). Batches are shaped to several jobs per worker (to
-    ``STATS["shape_for"]`` workers where the benchmark sets it)."""
-    if STATS["shape_for"]:
-        return int(STATS["shape_for"])
+    workers (None: one per core), or the benchmark's modelled workers (:func:`model`).
+    Ensembles are cut into several jobs per worker."""
+    if _MODEL:
+        return int(_MODEL["workers"])
     if dask_address is not None:
         return max(1, sum(_client(dask_address).nthreads().values()))
     return _local_workers(jobs)
@@ -174,16 +176,18 @@ def map_jobs(
     ------
     Whatever ``fn`` raised, for the first failing item (the other jobs are not waited for).
     """
-    t0 = time.perf_counter()
-    timed = []
-    try:
-        timed = _map(_Timed(fn), list(items), jobs, dask_address, progress)
-        return [r for r, _ in timed]
-    finally:
-        STATS["batches"].append(len(items))
-        STATS["job_s"].append([s for _, s in timed])
-        STATS["batch_s"].append(time.perf_counter() - t0)
-        STATS["wall_s"] += STATS["batch_s"][-1]
+    items = list(items)
+    queue = JobQueue(fn, jobs if len(items) > 1 else 1, dask_address)
+    queue.submit(list(enumerate(items)))
+    out: list[Any] = [None] * len(items)
+    done = 0
+    while queue.pending():
+        for i, r in queue.wait():
+            out[i] = r
+            done += 1
+            if progress is not None:
+                progress(done, len(items))
+    return out
 
 
 class _Timed:
@@ -198,52 +202,188 @@ class _Timed:
         return out, time.perf_counter() - t0
 
 
-# For the benchmark: time spent in map_jobs (the parallel part), each batch's size, wall time
-# and its jobs' own run times; ``shape_for``: shape batches for this many workers, whatever runs
-# them (0: the workers that run them), so that a batch's jobs on many workers can be timed on
-# few (tools/bench_gap.py --model).
-STATS: dict[str, Any] = {"batches": [], "job_s": [], "batch_s": [], "wall_s": 0.0,
-                         "shape_for": 0}
+class JobQueue:
+    """Jobs of one function, submitted as they become known and taken back as they finish.
+
+    A caller with several independent strands of work (the gap tool's selections) lets each
+    strand go on as soon as its own jobs are back, instead of waiting for the slowest job of a
+    batch that holds every strand's work: the workers then stay busy with the next requests
+    while a batch's last jobs run. Which jobs run together never changes a result (each job is
+    a deterministic function of its item).
+
+    Parameters
+    ----------
+    fn : a module-level (picklable) function
+    jobs : local worker processes (None: all cores; 1: in this process, each job when
+        :meth:`wait` needs it); dask_address : a Dask scheduler instead
+    """
+
+    def __init__(self, fn: Callable[[Any], Any], jobs: int | None = None,
+                 dask_address: str | None = None) -> None:
+        self._fn = _Timed(fn)
+        self._dask = dask_address
+        self._workers = 1 if dask_address is not None else _local_workers(jobs)
+        self._inline: list[tuple[Any, Any]] = []  # (tag, item) not yet run (one worker)
+        self._futures: dict[Any, Any] = {}  # future -> tag
+        self._modelled: list[tuple[float, int, Any, Any]] = []  # (finish, order, tag, result)
+
+    def submit(self, tagged: list[tuple[Any, Any]]) -> None:
+        """Queue (tag, item) pairs; :meth:`wait` returns (tag, result) pairs."""
+        STATS["submits"].append(len(tagged))
+        if not tagged:
+            return
+        if _MODEL:
+            self._model_run(tagged)
+        elif self._dask is not None:
+            client = _client(self._dask)
+            if _CLIENT_VERSION.get(self._dask) != _SHARED_VERSION[0]:
+                client.run(_install, dict(_SHARED))
+                _CLIENT_VERSION[self._dask] = _SHARED_VERSION[0]
+            with warnings.catch_warnings():
+                # (a job's item may carry big arrays, e.g. the report's figures': Dask warns
+                # about graphs over 10 MB, which here are a one-off payload, not a repeated one)
+                warnings.filterwarnings("ignore", message="Sending large graph")
+                futures = client.map(self._fn, [it for _, it in tagged], pure=False)
+            self._futures.update(zip(futures, [tag for tag, _ in tagged], strict=True))
+        elif self._workers <= 1:
+            self._inline.extend(tagged)
+        else:
+            pool = _pool(self._workers)
+            for tag, item in tagged:
+                self._futures[pool.submit(self._fn, item)] = tag
+
+    def pending(self) -> int:
+        """Jobs submitted and not yet taken back by :meth:`wait`."""
+        return len(self._inline) + len(self._futures) + len(self._modelled)
+
+    def busy(self) -> int:
+        """Jobs submitted and not yet done (modelled: not done by the model's clock): the
+        work that still keeps the workers busy."""
+        if _MODEL:
+            now = _model_clock()
+            return sum(m[0] > now for m in self._modelled)
+        return len(self._inline) + sum(not f.done() for f in self._futures)
+
+    def wait(self) -> list[tuple[Any, Any]]:
+        """Block until at least one job is done; every done job's (tag, result), once each.
+
+        Raises whatever a job raised (the queue's other jobs are cancelled)."""
+        t0 = time.perf_counter()
+        try:
+            if _MODEL:
+                return self._model_wait()
+            if self._inline:
+                tag, item = self._inline.pop(0)
+                return [(tag, self._take(*self._fn(item)))]
+            if not self._futures:
+                raise RuntimeError("JobQueue.wait: nothing submitted")
+            if self._dask is not None:
+                from distributed import wait as dask_wait
+
+                done = list(dask_wait(list(self._futures), return_when="FIRST_COMPLETED").done)
+                values = self._gather(done, lambda: _client(self._dask).gather(done))
+            else:
+                done = list(concurrent.futures.wait(
+                    list(self._futures), return_when=concurrent.futures.FIRST_COMPLETED).done)
+                values = self._gather(done, lambda: [f.result() for f in done])
+            return [(self._futures.pop(f), self._take(*v))
+                    for f, v in zip(done, values, strict=True)]
+        finally:
+            STATS["wait_s"] += time.perf_counter() - t0
+
+    def _gather(self, done: list[Any], get: Callable[[], list[Any]]) -> list[Any]:
+        try:
+            return get()
+        except BaseException:
+            for f in self._futures:
+                f.cancel()
+            self._futures.clear()
+            raise
+
+    @staticmethod
+    def _take(result: Any, job_s: float) -> Any:
+        STATS["job_s"] += job_s
+        STATS["jobs"] += 1
+        return result
+
+    # --- the benchmark's model of many workers (see :func:`model`) ---
+
+    def _model_run(self, tagged: list[tuple[Any, Any]]) -> None:
+        """Run the jobs here, now, each timing itself; each is given to the model's first free
+        worker in submission order (as a pool or Dask hands them out), so it finishes at
+        max(now, that worker free) + its time on the model's clock."""
+        now = _model_clock()
+        free = _MODEL["free"]
+        for tag, item in tagged:
+            out, job_s = self._fn(item)
+            i = min(range(len(free)), key=free.__getitem__)
+            free[i] = max(now, free[i]) + job_s
+            self._modelled.append((free[i], _MODEL["order"], tag, self._take(out, job_s)))
+            _MODEL["order"] += 1
+        _model_resume()
+
+    def _model_wait(self) -> list[tuple[Any, Any]]:
+        if not self._modelled:
+            raise RuntimeError("JobQueue.wait: nothing submitted")
+        now = max(_model_clock(), min(f for f, *_ in self._modelled))
+        _MODEL["now"] = now
+        done = sorted(m for m in self._modelled if m[0] <= now)
+        self._modelled = [m for m in self._modelled if m[0] > now]
+        _model_resume()
+        return [(tag, out) for _, _, tag, out in done]
+
+
+# For the benchmark: jobs and the time spent in them, the main process's time blocked waiting
+# for them (the rest of a run's wall time is its serial part), and each submission's size.
+STATS: dict[str, Any] = {"submits": [], "job_s": 0.0, "jobs": 0, "wait_s": 0.0}
 
 
 def reset_stats() -> None:
-    """Start counting :data:`STATS` afresh (``shape_for`` stays)."""
-    STATS["batches"] = []
-    STATS["job_s"] = []
-    STATS["batch_s"] = []
-    STATS["wall_s"] = 0.0
+    """Start counting :data:`STATS` afresh."""
+    STATS.update(submits=[], job_s=0.0, jobs=0, wait_s=0.0)
 
 
-def _map(fn: Callable[[T], R], items: list[T], jobs: int | None, dask_address: str | None,
-         progress: Callable[[int, int], None] | None) -> list[R]:
-    total = len(items)
-    if dask_address is not None:
-        client = _client(dask_address)
-        if _CLIENT_VERSION.get(dask_address) != _SHARED_VERSION[0]:
-            client.run(_install, dict(_SHARED))
-            _CLIENT_VERSION[dask_address] = _SHARED_VERSION[0]
-        with warnings.catch_warnings():
-            # (a batch's items are sent with it, e.g. the report's figures' arrays: Dask warns
-            # about graphs over 10 MB, which here are a one-off payload, not a repeated one)
-            warnings.filterwarnings("ignore", message="Sending large graph")
-            futures = client.map(fn, items, pure=False)
-        out = client.gather(futures)
-        if progress is not None:
-            progress(total, total)
-        return list(out)
-    n = _local_workers(jobs)
-    if n <= 1 or total <= 1:
-        out = []
-        for i, item in enumerate(items):
-            out.append(fn(item))
-            if progress is not None:
-                progress(i + 1, total)
-        return out
-    pool = _pool(n)
-    futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-    results: list[Any] = [None] * total
-    for done, fut in enumerate(as_completed(futures), start=1):
-        results[futures[fut]] = fut.result()
-        if progress is not None:
-            progress(done, total)
-    return results
+# The model of many workers: its clock (s), each modelled worker's time of being free next,
+# and the real time of the main process's last return from the queue.
+_MODEL: dict[str, Any] = {}
+
+
+def model(workers: int | None) -> None:
+    """Model ``workers`` workers on this machine (None: stop modelling), for
+    ``tools/bench_gap.py --model``: jobs run in this process, when submitted, each timing
+    itself; the model's clock advances by the main process's own time between its calls to a
+    queue (its serial work) and, when it waits, to the next modelled job's end. Jobs are
+    shaped for ``workers`` (:func:`worker_count`); :func:`model_times_s` gives the modelled
+    run's wall time. It leaves out what more cores cost each job (memory bandwidth, a shared
+    cache) and what sending a job costs (pickling, the pool's pipes): an upper bound on the
+    speed-up."""
+    _MODEL.clear()
+    if workers:
+        prepare_worker()  # (jobs run here: one BLAS thread, as in a worker)
+        _MODEL.update(workers=workers, free=[0.0] * workers, now=0.0, serial=0.0, order=0,
+                      mark=time.perf_counter())
+
+
+def model_times_s() -> tuple[float, float]:
+    """The modelled run since :func:`model` was called: its wall time and its serial part
+    (the main process's own time), s."""
+    return _model_clock(), _MODEL["serial"]
+
+
+def _model_clock() -> float:
+    mine = time.perf_counter() - _MODEL["mark"]
+    _MODEL["now"] += mine
+    _MODEL["serial"] += mine
+    _MODEL["mark"] = time.perf_counter()
+    return _MODEL["now"]
+
+
+def _model_resume() -> None:
+    """(the jobs just run here are the model's workers' time, not the main process's)"""
+    _MODEL["mark"] = time.perf_counter()
+
+
+def modelling() -> bool:
+    """Whether :func:`model` is modelling workers (the gap tool then judges its located gaps
+    in the main thread: a thread beside jobs run in this process would share their time)."""
+    return bool(_MODEL)

@@ -1,14 +1,15 @@
 """Ensembles of the prepared runs under candidate profiles, scored per held-out unit, with a cache
-and batched requests (DESIGN 7.2).
+(DESIGN 7.2).
 
-A request names a profile table, a seed set and runs; everything missing is simulated in one
-batch of jobs (one job per table, seed set and run: the run simulated once per seed over all its
-epochs, and every unit of the run measured where the job runs, so only the units' statistics
-come back, to be scored here). The selections of a diagnosis (the full one and one per outer
-fold) ask together, so a batch holds every candidate's grid for every fold at once. A batch of
-fewer jobs than several per worker splits each job's seeds into groups, one job each: every
-seed is its own generator, and the groups' statistics are joined before scoring
-(:func:`virtualgps.gap.where.merge_stats`), so the scores do not depend on the split.
+A request names a profile table, a seed set and runs; everything neither scored nor under way
+is submitted as jobs (one per table, seed set and run: the run simulated once per seed over all
+its epochs, and every unit of the run measured where the job runs, so only the units' scores
+come back). The selections of a diagnosis (the full one and one per outer fold) run side by
+side (:func:`virtualgps.gap.select.drive`), each going on when its own units are scored. When
+the jobs submitted and those still running make fewer than several per worker, each job's
+seeds are split into groups, one job each: every seed is its own generator, and the groups'
+statistics are joined before scoring (:func:`virtualgps.gap.where.merge_stats`), so the scores
+do not depend on the split, nor on the order in which jobs finish.
 
 Seed sets. Set 0 fits parameters, set 1 measures the held-out gap of what set 0 fitted (with
 common random numbers the same seeds would carry the fit's luck from a run's training blocks
@@ -28,7 +29,7 @@ import numpy as np
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import Design
 from virtualgps.gap.ensemble import Ensemble, EnsembleJob, simulate_job, split_seeds
-from virtualgps.gap.jobs import map_jobs, share, shared, worker_count
+from virtualgps.gap.jobs import JobQueue, map_jobs, share, shared, worker_count
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.where import (
     SCORE_METRICS,
@@ -157,57 +158,79 @@ class Simulator:
         # per-sky-bin counts are only read to learn sky masks, from logs with SNR
         self.bins = any(r.view.assess.get("gsv") and r.view.assess.get("cn0") for r in runs)
         self.n_sims = 0
-        self.batches: list[int] = []  # jobs per batch (for the benchmark)
+        self.batches: list[int] = []  # jobs per submission (for the benchmark)
+        self.queue = JobQueue(gap_job, jobs, dask)
+        # units under way: one slot per seed group, filled as the jobs come back
+        self._parts: dict[tuple[str, int, int], list[UnitPart | UnitScore | None]] = {}
 
     def seeds(self, seed_set: int) -> tuple[int, ...]:
         """The seeds of a seed set (disjoint ranges)."""
         return tuple(range(seed_set * self.n_seeds, (seed_set + 1) * self.n_seeds))
 
     def request(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> None:
-        """Make sure every (table, seed set, units) item is scored: what is missing is
-        simulated in one batch of jobs (one per table, seed set and run, scoring that run's
-        missing units). Per-sky-bin counts come with the fitting seeds (learned sky masks are
-        fitted), per-PRN counts with the held-out seeds (the tracking disagreement)."""
+        """Make sure every (table, seed set, units) item is scored (:meth:`submit`, then
+        :meth:`collect` until :meth:`has`)."""
+        items = list(items)
+        self.submit(items)
+        while not self.has(items):
+            self.collect()
+
+    def submit(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> None:
+        """Submit the jobs that score what is neither scored nor under way of (table, seed
+        set, units) items: one per table, seed set and run, scoring that run's missing units.
+        Per-sky-bin counts come with the fitting seeds (learned sky masks are fitted),
+        per-PRN counts with the held-out seeds (the tracking disagreement)."""
         todo: dict[tuple[str, int, int], tuple[dict[str, Any], set[int]]] = {}
         for table, seed_set, units in items:
             key = self.key(table)
             for u in units:
-                if (key, seed_set, u) not in self._scores:
+                k = (key, seed_set, u)
+                if k not in self._scores and k not in self._parts:
                     todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
         if not todo:
             return
-        # A batch of fewer jobs than several per worker leaves workers idle while its slowest
-        # job runs: its jobs' seeds are then split into groups, a job each (no seed is
-        # simulated twice).
+        # Fewer jobs than several per worker, beside what still keeps the workers busy, would
+        # leave workers idle while the slowest job runs: the jobs' seeds are then split into
+        # groups, a job each (no seed is simulated twice, and the scores are the same).
         workers = self.workers()
-        groups = 1
-        if workers > 1 and len(todo) < MIN_JOBS_PER_WORKER * workers:
-            groups = -(-MIN_JOBS_PER_WORKER * workers // len(todo))
+        short = MIN_JOBS_PER_WORKER * workers - self.queue.busy()
+        groups = -(-short // len(todo)) if workers > 1 and len(todo) < short else 1
         profiles: dict[str, Any] = {}
-        jobs, owners = [], []
+        tagged = []
         for (key, seed_set, r), (table, us) in todo.items():
             if key not in profiles:
                 profiles[key] = fx.build(table, self.source)
             order = sorted(us)
             seed_groups = split_seeds(self.seeds(seed_set), groups)
-            for seeds in seed_groups:
-                jobs.append(GapJob(self.keys[r], profiles[key], seeds,
-                                   tuple(self.units[u].mask for u in order),
-                                   prn=seed_set == HELD, bins=seed_set == FIT and self.bins,
-                                   whole=len(seed_groups) == 1))
-                owners.append((key, seed_set, order))
-        self.batches.append(len(jobs))
-        res = map_jobs(gap_job, jobs, jobs=self.jobs, dask_address=self.dask)
-        parts: dict[tuple[str, int, int], list[UnitPart]] = {}
-        for (key, seed_set, order), got, j in zip(owners, res, jobs, strict=True):
-            self.n_sims += len(j.seeds) * self.runs[self.units[order[0]].run].setup.t_unix_s.size
+            for u in order:
+                self._parts[(key, seed_set, u)] = [None] * len(seed_groups)
+            for g, seeds in enumerate(seed_groups):
+                job = GapJob(self.keys[r], profiles[key], seeds,
+                             tuple(self.units[u].mask for u in order), prn=seed_set == HELD,
+                             bins=seed_set == FIT and self.bins, whole=len(seed_groups) == 1)
+                tagged.append(((key, seed_set, tuple(order), g, len(seeds)), job))
+        self.batches.append(len(tagged))
+        self.queue.submit(tagged)
+
+    def collect(self) -> None:
+        """Wait for at least one job and take in every finished one's results (a unit is
+        scored once every seed group of it is back)."""
+        for (key, seed_set, order, g, n_seeds), got in self.queue.wait():
+            self.n_sims += n_seeds * self.runs[self.units[order[0]].run].setup.t_unix_s.size
             for u, one in zip(order, got, strict=True):
-                if j.whole:
-                    self._scores[(key, seed_set, u)] = one
-                else:
-                    parts.setdefault((key, seed_set, u), []).append(one)
-        for k, unit_parts in parts.items():  # (the jobs came back in seed order)
-            self._scores[k] = unit_score(unit_parts)
+                k = (key, seed_set, u)
+                parts = self._parts[k]
+                parts[g] = one
+                if all(p is not None for p in parts):
+                    del self._parts[k]
+                    # (a whole seed set's job scored its units where it ran; seed groups are
+                    # joined in seed order)
+                    self._scores[k] = one if len(parts) == 1 else unit_score(parts)
+
+    def has(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> bool:
+        """Whether every (table, seed set, units) item is scored."""
+        return all((self.key(table), seed_set, u) in self._scores
+                   for table, seed_set, units in items for u in units)
 
     def workers(self) -> int:
         """The workers jobs go to (local processes, or the Dask cluster's threads)."""

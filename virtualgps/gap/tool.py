@@ -9,7 +9,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +23,7 @@ from virtualgps.gap import effects as fx
 from virtualgps.gap import select as sel
 from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
-from virtualgps.gap.jobs import unshare
+from virtualgps.gap.jobs import modelling, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
@@ -181,8 +181,9 @@ def diagnose(
             causes.append(extra)
     georef = cz.georeference(runs, profile.georef)
     keys = share_runs(runs)
-    # The located gaps are judged in a thread while the workers simulate the candidates.
-    judging = ThreadPoolExecutor(1)
+    # The located gaps are judged in a thread while the workers simulate the candidates (not
+    # where the benchmark models workers in this process: the thread would share their time).
+    judging = ThreadPoolExecutor(1) if not modelling() else _Here()
     where_job = judging.submit(dg.where_table, runs, base_ens)
     # Guards as long as the real error's correlation time: held-out real data then share no
     # correlated error with the data a fit saw (the simulations use seeds of their own).
@@ -220,6 +221,18 @@ def diagnose(
     unshare(keys)
     report["elapsed_s"] = time.perf_counter() - t_start
     return report, figures, final_table
+
+
+class _Here:
+    """An executor that runs each call at once, in this thread."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
+        fut: Future = Future()
+        fut.set_result(fn(*args))
+        return fut
+
+    def shutdown(self) -> None:
+        pass
 
 
 def _corr_time_s(view: RunView, err: np.ndarray) -> float:
