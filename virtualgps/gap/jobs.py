@@ -281,17 +281,18 @@ class JobQueue:
                 from distributed import wait as dask_wait
 
                 done = list(dask_wait(list(self._futures), return_when="FIRST_COMPLETED").done)
-                values = self._gather(done, lambda: _client(self._dask).gather(done))
+                values = self._gather(lambda: _client(self._dask).gather(done))
             else:
                 done = list(concurrent.futures.wait(
                     list(self._futures), return_when=concurrent.futures.FIRST_COMPLETED).done)
-                values = self._gather(done, lambda: [f.result() for f in done])
+                values = self._gather(lambda: [f.result() for f in done])
             return [(self._futures.pop(f), self._take(*v))
                     for f, v in zip(done, values, strict=True)]
         finally:
             STATS["wait_s"] += time.perf_counter() - t0
 
-    def _gather(self, done: list[Any], get: Callable[[], list[Any]]) -> list[Any]:
+    def _gather(self, get: Callable[[], list[Any]]) -> list[Any]:
+        """The done jobs' results; on a job's error the queue's other jobs are cancelled."""
         try:
             return get()
         except BaseException:
@@ -358,6 +359,8 @@ def model(workers: int | None) -> None:
     cache) and what sending a job costs (pickling, the pool's pipes): an upper bound on the
     speed-up."""
     _MODEL.clear()
+    while _LIMITS:  # (the BLAS threads this process had before modelling)
+        _LIMITS.pop().restore_original_limits()
     if workers:
         prepare_worker()  # (jobs run here: one BLAS thread, as in a worker)
         _MODEL.update(workers=workers, free=[0.0] * workers, now=0.0, serial=0.0, order=0,
