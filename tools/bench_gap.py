@@ -105,6 +105,8 @@ def main() -> None:
         r = once(inp, dg.Options(seeds=args.seeds, jobs=1), model_workers=n)
         first = first or r["wall_s"]
         say(f"modelled workers {n}", r, n, first)
+        print(f"  {(r['serial_s'] + r['job_s']) / r['wall_s']:.2f}x the same jobs one at a time "
+              "(serial rest plus job time over the modelled wall)", flush=True)
 
 
 def say(what: str, r: dict, n: int, first: float) -> None:
