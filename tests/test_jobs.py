@@ -132,6 +132,8 @@ def test_dask_cluster_gives_the_same_ensembles(dask_cluster):
     items = _items()
     _same(jobs.map_jobs(simulate_job, items, jobs=1),
           jobs.map_jobs(simulate_job, items, dask_address=dask_cluster))
+    with pytest.raises(ValueError, match="job 3 failed"):
+        jobs.map_jobs(_boom, list(range(6)), dask_address=dask_cluster)
 
 
 

@@ -225,6 +225,7 @@ class JobQueue:
         self._workers = 1 if dask_address is not None else _local_workers(jobs)
         self._inline: list[tuple[Any, Any]] = []  # (tag, item) not yet run (one worker)
         self._futures: dict[Any, Any] = {}  # future -> tag
+        self._stream: Any = None  # Dask: the futures as they finish (distributed.as_completed)
         self._modelled: list[tuple[float, int, Any, Any]] = []  # (finish, order, tag, result)
 
     def submit(self, tagged: list[tuple[Any, Any]]) -> None:
@@ -245,6 +246,14 @@ class JobQueue:
                 warnings.filterwarnings("ignore", message="Sending large graph")
                 futures = client.map(self._fn, [it for _, it in tagged], pure=False)
             self._futures.update(zip(futures, [tag for tag, _ in tagged], strict=True))
+            if self._stream is None:
+                from distributed import as_completed
+
+                # (results fetched by the client's own thread as jobs finish, so a wait does
+                # not make a round trip to the cluster)
+                self._stream = as_completed(futures, with_results=True)
+            else:
+                self._stream.update(futures)
         elif self._workers <= 1:
             self._inline.extend(tagged)
         else:
@@ -278,14 +287,11 @@ class JobQueue:
             if not self._futures:
                 raise RuntimeError("JobQueue.wait: nothing submitted")
             if self._dask is not None:
-                from distributed import wait as dask_wait
-
-                done = list(dask_wait(list(self._futures), return_when="FIRST_COMPLETED").done)
-                values = self._gather(lambda: _client(self._dask).gather(done))
-            else:
-                done = list(concurrent.futures.wait(
-                    list(self._futures), return_when=concurrent.futures.FIRST_COMPLETED).done)
-                values = self._gather(lambda: [f.result() for f in done])
+                done = self._gather(self._dask_batch)
+                return [(self._futures.pop(f), self._take(*v)) for f, v in done]
+            done = list(concurrent.futures.wait(
+                list(self._futures), return_when=concurrent.futures.FIRST_COMPLETED).done)
+            values = self._gather(lambda: [f.result() for f in done])
             return [(self._futures.pop(f), self._take(*v))
                     for f, v in zip(done, values, strict=True)]
         finally:
@@ -300,6 +306,15 @@ class JobQueue:
                 f.cancel()
             self._futures.clear()
             raise
+
+    def _dask_batch(self) -> list[tuple[Any, Any]]:
+        """(future, result) of every Dask job finished by now, at least one; a job's error
+        raised."""
+        batch = self._stream.next_batch(block=True)
+        for f, res in batch:
+            if f.status == "error":  # (only the first of a batch is raised by Dask itself)
+                raise res[1].with_traceback(res[2])
+        return batch
 
     @staticmethod
     def _take(result: Any, job_s: float) -> Any:
