@@ -16,6 +16,7 @@ from virtualgps.exceptions import ConfigError
 
 SENTENCE_TYPES = ("GGA", "GSA", "GSV", "RMC", "VTG", "GLL", "GST", "ZDA")
 NO_FIX_STYLES = ("mtk", "empty")
+NMEA_VERSIONS = ("2.3", "4.11")
 
 # GSV: NMEA 0183 v2.3 allows 1 to 9 messages of 4 satellites.
 GSV_MAX_SATS = 36
@@ -46,6 +47,12 @@ class NmeaFormat:
     every : ``{sentence: n}``: write that sentence only every n-th fix (PMTK314 semantics); the
         fix number is ``round(t_unix_s * fix_rate_hz)``
     fix_rate_hz : the output rate, used only to count fixes for ``every``
+    version : ``"2.3"`` (NMEA 0183 v2.3, as MTK firmware: one GSA and one run of GSV, every
+        satellite by its number, all under ``talker``) or ``"4.11"`` (as u-blox M8/M9/F9 and
+        phones write several systems: a GSA per system ending in its system ID, a run of GSV
+        per system's talker (GP, GL, GA, GB, GQ) ending in the signal ID, satellites by their
+        NMEA IDs, RMC's navigational status ``V``; ``talker`` ``GN`` where several systems are
+        tracked). 4.11 needs ``mode_letter``.
     """
 
     talker: str = "GP"
@@ -64,6 +71,7 @@ class NmeaFormat:
     zda_local_zone: str = "zero"
     every: tuple[tuple[str, int], ...] = ()
     fix_rate_hz: float = 1.0
+    version: str = "2.3"
 
     def __post_init__(self) -> None:
         _check(
@@ -127,6 +135,10 @@ class NmeaFormat:
             and 0.0 < self.fix_rate_hz <= 100.0
         )
         _check("fix_rate_hz", self.fix_rate_hz, ok, "a number in (0, 100]")
+        _check("version", self.version, self.version in NMEA_VERSIONS,
+               f"one of {NMEA_VERSIONS} (a string)")
+        _check("mode_letter", self.mode_letter, self.mode_letter or self.version == "2.3",
+               "true with version 4.11 (its RMC, VTG and GLL end in the mode letter)")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], section: str = "nmea") -> NmeaFormat:

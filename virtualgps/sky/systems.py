@@ -37,7 +37,8 @@ class System:
     name : e.g. "GLONASS"; letter : its RINEX 3 letter; first, last : its numbers here
     (inclusive); offset : number here = offset + its own identifier (PRN, or GLONASS slot)
     talker : its NMEA talker ID; nmea_id : its NMEA 4.11 system ID; nmea_offset : NMEA
-    satellite ID = number here - nmea_offset
+    satellite ID = number here - nmea_offset; nmea_signal : the NMEA 4.11 signal ID of its L1
+    civil signal (GSV's last field), the one signal simulated here
     """
 
     name: str
@@ -48,12 +49,15 @@ class System:
     talker: str
     nmea_id: int
     nmea_offset: int
+    nmea_signal: int = 1
 
 
+# Signal IDs (NMEA 0183 v4.11 signal ID table, as u-blox M8/F9 interface descriptions list it):
+# 1 GPS L1 C/A, GLONASS L1 OF, BeiDou B1I, QZSS L1 C/A; 7 Galileo E1 (B/C).
 GPS = System("GPS", "G", 1, 32, 0, "GP", 1, 0)
 SBAS = System("SBAS", "S", 120, 158, 0, "GP", 1, 87)
 GLONASS = System("GLONASS", "R", 65, 96, 64, "GL", 2, 0)
-GALILEO = System("Galileo", "E", 301, 336, 300, "GA", 3, 300)
+GALILEO = System("Galileo", "E", 301, 336, 300, "GA", 3, 300, nmea_signal=7)
 BEIDOU = System("BeiDou", "C", 401, 463, 400, "GB", 4, 400)
 QZSS = System("QZSS", "J", 193, 202, 0, "GQ", 5, 192)
 SYSTEMS: tuple[System, ...] = (GPS, GLONASS, GALILEO, BEIDOU, QZSS, SBAS)

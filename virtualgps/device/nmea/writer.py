@@ -1,4 +1,5 @@
-"""NMEA 0183 output: fixes -> sentences as a MediaTek (MTK) receiver writes them.
+"""NMEA 0183 output: fixes -> sentences as a MediaTek (MTK) receiver writes them (v2.3), or
+as a multi-system receiver does (v4.11: per-system GSA and GSV, see :func:`_groups`).
 
 Owns the sentence layout (NMEA 0183 v2.3 fields, in the habits of MTK firmware) and the output
 format of a receiver profile (:class:`~virtualgps.receiver.nmea_format.NmeaFormat`, the profile's
@@ -40,6 +41,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from datetime import date
 from typing import Any
 
@@ -53,6 +55,7 @@ from virtualgps.device.nmea.sentence import (
 )
 from virtualgps.receiver.nmea_format import NmeaFormat
 from virtualgps.receiver.records import QUALITY_DGPS, QUALITY_NONE, Fixes
+from virtualgps.sky import systems
 
 # MTK placeholders before the first fix (gpsd-mtk/tr737A+.log, mtk-3301.log).
 MTK_PLACEHOLDER_LAT_DEG = 90.0  # printed as 8960.0000 (89 deg 60 min), MTK's habit
@@ -63,6 +66,53 @@ MTK_PLACEHOLDER_GEOID_SEP_M = 13.0
 GSA_SLOTS = 12
 
 _GST_KEYS = ("range_rms_m", "semi_major_m", "semi_minor_m", "orient_deg", "lat_m", "lon_m", "alt_m")
+
+
+@dataclass(frozen=True)
+class _Group:
+    """The satellites one GSA or one run of GSV sentences lists.
+
+    talker : the sentences' talker; cols : (k,) their columns of :class:`Fixes`, channel
+    order; ids : (k,) the satellite IDs printed; tail : text after the last field (NMEA 4.11:
+    ``,<system ID>`` in GSA, ``,<signal ID>`` in GSV; empty in 2.3)
+    """
+
+    talker: str
+    cols: np.ndarray
+    ids: np.ndarray
+    tail: str
+
+
+@functools.lru_cache(maxsize=64)
+def _groups(prn: tuple[int, ...], talker: str, version: str) -> tuple[tuple[_Group, ...],
+                                                                     tuple[_Group, ...]]:
+    """The GSA and GSV groups of a constellation's columns.
+
+    NMEA 0183 v2.3: one of each, every satellite by its number, the profile's talker.
+    v4.11 (as u-blox M8/M9 and phones write it): a GSA per system of the constellation, talker
+    the profile's (``GN`` for several systems), ending in its system ID, and a run of GSV per
+    talker (GP with SBAS, GL, GA, GB, GQ) ending in the signal ID, satellites by their NMEA IDs
+    (GLONASS 65-96, Galileo 1-36, ...: :mod:`virtualgps.sky.systems`); systems in system ID
+    order. A number of no known system is listed with GPS as it is.
+    """
+    cols = np.arange(len(prn))
+    nums = np.asarray(prn, dtype=np.int64)
+    if version != "4.11":
+        whole = _Group(talker, cols, nums, "")
+        return (whole,), (whole,)
+    by_id: dict[int, list[int]] = {}
+    for c, n in enumerate(prn):
+        s = systems.system_of(n) or systems.GPS
+        by_id.setdefault(s.nmea_id, []).append(c)
+    gsa, gsv = [], []
+    for sid in sorted(by_id):
+        cc = np.array(by_id[sid], dtype=np.int64)
+        ids = np.array([n - (systems.system_of(n) or systems.GPS).nmea_offset
+                        for n in nums[cc].tolist()], dtype=np.int64)
+        s = next(x for x in systems.SYSTEMS if x.nmea_id == sid)
+        gsa.append(_Group(talker, cc, ids, f",{sid:X}"))
+        gsv.append(_Group(s.talker, cc, ids, f",{s.nmea_signal:X}"))
+    return tuple(gsa), tuple(gsv)
 
 
 # --- vectorised rendering ---------------------------------------------------------------------
@@ -250,7 +300,8 @@ def _render_block(
     mode = np.asarray(fixes.mode[sl]).astype(np.int64)
     mode_none = mode <= 1
     used = np.asarray(fixes.used[sl], dtype=bool)
-    prn = np.asarray(fixes.prn).astype(np.int64)
+    gsa_groups, gsv_groups = _groups(tuple(np.asarray(fixes.prn).astype(np.int64).tolist()),
+                                     T, fmt.version)
 
     def fx(
         x: Any,
@@ -289,6 +340,8 @@ def _render_block(
     course = fx(course_deg, 3, cd, none, 0.0)
     status = _char(np.where(no_fix, ord("V"), ord("A")))
     letter = [",", _char(_MODE_LETTERS[q])] if fmt.mode_letter else []
+    # NMEA 4.10+: RMC's navigational status after the mode; "V", no status given (as u-blox)
+    nav_status = [",V"] if fmt.version == "4.11" else []
     every = dict(fmt.every)
     emit: dict[str, np.ndarray | None] = {name: None for name in fmt.sentences}
     if every:
@@ -322,29 +375,34 @@ def _render_block(
                 _choose(dgps_on, "0000,0000", ","),
             ]
         elif name == "GSA":
-            # used PRNs in channel (column) order, 12 slots (bt-q818.log:12)
-            order = np.argsort(~used, axis=1, kind="stable")[:, :GSA_SLOTS]
-            slot_used = np.take_along_axis(used, order, axis=1) & ~mode_none[:, None]
-            slot_prn = prn[order] if prn.size else np.zeros(order.shape, dtype=np.int64)
-            ns = slot_prn.shape[1]
-            ch = _digits(slot_prn.reshape(-1), 3, 2).reshape(n, ns, 3)
-            ch[~slot_used] = _NUL
-            sep = np.full((n, ns, 1), ord(","), dtype=np.uint8)
-            slots = np.concatenate([ch, sep], axis=2).reshape(n, ns * 4)
-            body = [
-                T + "GSA,A,",
-                _char(np.where(mode_none, 1, mode) + _DIGIT0),
-                ",",
-                slots,
-                "," * (GSA_SLOTS - ns),
-                pdop,
-                ",",
-                hdop,
-                ",",
-                vdop,
-            ]
+            for g in gsa_groups:
+                # used PRNs in channel (column) order, 12 slots (bt-q818.log:12)
+                used_g = used[:, g.cols]
+                order = np.argsort(~used_g, axis=1, kind="stable")[:, :GSA_SLOTS]
+                slot_used = np.take_along_axis(used_g, order, axis=1) & ~mode_none[:, None]
+                slot_prn = g.ids[order] if g.ids.size else np.zeros(order.shape, dtype=np.int64)
+                ns = slot_prn.shape[1]
+                ch = _digits(slot_prn.reshape(-1), 3, 2).reshape(n, ns, 3)
+                ch[~slot_used] = _NUL
+                sep = np.full((n, ns, 1), ord(","), dtype=np.uint8)
+                slots = np.concatenate([ch, sep], axis=2).reshape(n, ns * 4)
+                body = [
+                    g.talker + "GSA,A,",
+                    _char(np.where(mode_none, 1, mode) + _DIGIT0),
+                    ",",
+                    slots,
+                    "," * (GSA_SLOTS - ns),
+                    pdop,
+                    ",",
+                    hdop,
+                    ",",
+                    vdop,
+                    g.tail,
+                ]
+                out_parts.append(_sentence(n, body, emit[name]))
+            continue
         elif name == "GSV":
-            out_parts.append(_gsv(fixes, fmt, sl, emit[name]))
+            out_parts += [_gsv(fixes, fmt, sl, emit[name], g) for g in gsv_groups]
             continue
         elif name == "RMC":
             date = _cat(n, [dd2, mo2, _digits(yy % 100, 2, 2)])
@@ -363,6 +421,7 @@ def _render_block(
                 date,
                 ",,",
                 *letter,
+                *nav_status,
             ]
         elif name == "VTG":
             body = [T + "VTG,", course, ",T,,M,", knots, ",N,", kmh, ",K", *letter]
@@ -394,17 +453,18 @@ def _render_block(
     return [data[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
 
 
-def _gsv(fixes: Fixes, fmt: NmeaFormat, sl: slice, emit: np.ndarray | None) -> np.ndarray:
-    """(n, w) uint8: the GSV sentences of each epoch: satellites in view by decreasing
-    elevation, unknown elevation last with empty fields, ties and unknown elevations in channel
-    (column) order (mt3339.log:22, mtk-3301.log), 4 per
+def _gsv(fixes: Fixes, fmt: NmeaFormat, sl: slice, emit: np.ndarray | None, g: _Group
+         ) -> np.ndarray:
+    """(n, w) uint8: the GSV sentences of each epoch for the satellites of group ``g``:
+    satellites in view by decreasing elevation, unknown elevation last with empty fields, ties
+    and unknown elevations in channel (column) order (mt3339.log:22, mtk-3301.log), 4 per
     sentence, the last one not padded (mtk-3329.log); ``GSV,1,1,00`` when none is in view."""
-    in_view = np.asarray(fixes.in_view[sl], dtype=bool)
+    in_view = np.asarray(fixes.in_view[sl], dtype=bool)[:, g.cols]
     n, n_sat = in_view.shape
-    el = np.asarray(fixes.el_deg[sl], dtype=np.float64)
-    az = np.asarray(fixes.az_deg[sl], dtype=np.float64)
-    cn0 = np.asarray(fixes.cn0_dbhz[sl], dtype=np.float64)
-    prn = np.broadcast_to(np.asarray(fixes.prn).astype(np.int64), (n, n_sat))
+    el = np.asarray(fixes.el_deg[sl], dtype=np.float64)[:, g.cols]
+    az = np.asarray(fixes.az_deg[sl], dtype=np.float64)[:, g.cols]
+    cn0 = np.asarray(fixes.cn0_dbhz[sl], dtype=np.float64)[:, g.cols]
+    prn = np.broadcast_to(g.ids, (n, n_sat))
     el_nan = np.isnan(el)
     # lexsort is stable: equal keys keep the column (channel) order
     order = np.lexsort((-np.nan_to_num(el, nan=0.0), el_nan, ~in_view), axis=-1)
@@ -444,13 +504,14 @@ def _gsv(fixes: Fixes, fmt: NmeaFormat, sl: slice, emit: np.ndarray | None) -> n
     msg_no = np.broadcast_to(np.arange(1, n_msg_max + 1), (n, n_msg_max)).reshape(-1)
     nm = n * n_msg_max
     body = [
-        fmt.talker + "GSV,",
+        g.talker + "GSV,",
         _char(np.repeat(n_msg, n_msg_max) + _DIGIT0),
         ",",
         _char(msg_no + _DIGIT0),
         ",",
         _digits(np.repeat(n_view, n_msg_max), 2, 2),
         ent.reshape(nm, -1),
+        g.tail,
     ]
     msg_on = msg_no <= np.repeat(n_msg, n_msg_max)
     if emit is not None:
@@ -523,7 +584,8 @@ def _render_scalar(
     mode = int(fixes.mode[i])
     mode_none = mode <= 1
     used_row = np.asarray(fixes.used[i], dtype=bool).tolist()
-    prn = np.asarray(fixes.prn).astype(np.int64).tolist()
+    gsa_groups, gsv_groups = _groups(tuple(np.asarray(fixes.prn).astype(np.int64).tolist()),
+                                     T, fmt.version)
     ph = mtk  # placeholders for NaN (MTK style)
     ad, dd_, sd, cd = fmt.alt_decimals, fmt.dop_decimals, fmt.speed_decimals, fmt.course_decimals
     alt = _opt_s(float(fixes.alt_msl_m[i]), 6, ad, MTK_PLACEHOLDER_ALT_MSL_M if ph else None)
@@ -546,6 +608,7 @@ def _render_scalar(
     course = _opt_s(c, 3, cd, zero)
     status = "V" if no_fix else "A"
     letter = "," + "NADPRFEMS"[q] if fmt.mode_letter else ""
+    nav_status = ",V" if fmt.version == "4.11" else ""  # (see _render_block)
     every = dict(fmt.every)
     fix_no = round(t * fmt.fix_rate_hz) if every else 0
 
@@ -561,21 +624,24 @@ def _render_scalar(
                 f"{T}GGA,{time},{latlon},{q},{sats},{dop(hdop_v, no_fix)},{alt},M,{geoid},M,{dgps}"
             )
         elif name == "GSA":
-            if mode_none:
-                out.append(T + "GSA,A,1,,,,,,,,,,,,,,,")
-            else:
-                ids = [f"{p:02d}" for p, u in zip(prn, used_row, strict=True) if u][:GSA_SLOTS]
+            for g in gsa_groups:
+                if mode_none:
+                    out.append(g.talker + "GSA,A,1,,,,,,,,,,,,,,," + g.tail)
+                    continue
+                ids = [f"{p:02d}" for p, c in zip(g.ids.tolist(), g.cols.tolist(), strict=True)
+                       if used_row[c]][:GSA_SLOTS]
                 slots = ",".join(ids + [""] * (GSA_SLOTS - len(ids)))
                 out.append(
-                    f"{T}GSA,A,{mode},{slots},{dop(pdop_v, False)},{dop(hdop_v, False)},"
-                    f"{dop(vdop_v, False)}"
+                    f"{g.talker}GSA,A,{mode},{slots},{dop(pdop_v, False)},{dop(hdop_v, False)},"
+                    f"{dop(vdop_v, False)}{g.tail}"
                 )
         elif name == "GSV":
-            out += _gsv_scalar(fixes, fmt, i, prn)
+            for g in gsv_groups:
+                out += _gsv_scalar(fixes, fmt, i, g)
         elif name == "RMC":
             out.append(
                 f"{T}RMC,{time},{status},{latlon},{knots},{course},{dd:02d}{mo:02d}{yy % 100:02d}"
-                f",,{letter}"
+                f",,{letter}{nav_status}"
             )
         elif name == "VTG":
             out.append(f"{T}VTG,{course},T,,M,{knots},N,{kmh},K{letter}")
@@ -600,19 +666,20 @@ def _render_scalar(
     return "".join([format_sentence(b) for b in out]).encode("ascii")
 
 
-def _gsv_scalar(fixes: Fixes, fmt: NmeaFormat, i: int, prn: list[int]) -> list[str]:
-    """GSV bodies of epoch ``i`` (scalar twin of :func:`_gsv`)."""
-    in_view = np.asarray(fixes.in_view[i], dtype=bool).tolist()
-    el = np.asarray(fixes.el_deg[i], dtype=np.float64).tolist()
-    az = np.asarray(fixes.az_deg[i], dtype=np.float64).tolist()
-    cn0 = np.asarray(fixes.cn0_dbhz[i], dtype=np.float64).tolist()
+def _gsv_scalar(fixes: Fixes, fmt: NmeaFormat, i: int, g: _Group) -> list[str]:
+    """GSV bodies of epoch ``i`` for group ``g`` (scalar twin of :func:`_gsv`)."""
+    in_view = np.asarray(fixes.in_view[i], dtype=bool)[g.cols].tolist()
+    el = np.asarray(fixes.el_deg[i], dtype=np.float64)[g.cols].tolist()
+    az = np.asarray(fixes.az_deg[i], dtype=np.float64)[g.cols].tolist()
+    cn0 = np.asarray(fixes.cn0_dbhz[i], dtype=np.float64)[g.cols].tolist()
+    prn = g.ids.tolist()
 
     # (keys built in one pass: a key function called per satellite costs more)
     keys = [(not v, e != e, -(0.0 if e != e else e)) for v, e in zip(in_view, el, strict=True)]
     order = sorted(range(len(prn)), key=keys.__getitem__)  # stable: ties in column order
     n_view = min(sum(in_view), fmt.gsv_max_sats)
     if n_view == 0:
-        return [fmt.talker + "GSV,1,1,00"]
+        return [g.talker + "GSV,1,1,00" + g.tail]
     sats = []
     for j in order[:n_view]:
         e, a, s = el[j], az[j], cn0[j]
@@ -623,7 +690,8 @@ def _gsv_scalar(fixes: Fixes, fmt: NmeaFormat, i: int, prn: list[int]) -> list[s
         sats.append(f"{prn[j]:02d},{e_t},{a_t},{s_t}")
     n_msg = (n_view + 3) // 4
     return [
-        f"{fmt.talker}GSV,{n_msg},{m + 1},{n_view:02d},{','.join(sats[4 * m : 4 * m + 4])}"
+        f"{g.talker}GSV,{n_msg},{m + 1},{n_view:02d},{','.join(sats[4 * m : 4 * m + 4])}"
+        f"{g.tail}"
         for m in range(n_msg)
     ]
 

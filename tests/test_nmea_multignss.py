@@ -1,0 +1,121 @@
+"""NMEA 0183 v4.11 output of a receiver tracking several systems (issue 23), checked against
+pynmeagps and pynmea2: a GSA per system with its system ID, GSV per talker with the signal ID,
+satellites by their NMEA IDs, RMC's navigational status; the scalar and vectorised writers give
+the same bytes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_nmea import make_fixes, parse_both, sentences
+
+from virtualgps.device import nmea
+from virtualgps.device.nmea import NmeaFormat
+from virtualgps.exceptions import ConfigError
+from virtualgps.sky import systems
+
+# Satellite numbers here (virtualgps.sky.systems): GPS 5, 12, 29; SBAS PRN 123; GLONASS slots
+# 1, 14, 23; Galileo E11, E30; BeiDou C19; QZSS J01 (PRN 193). NMEA 4.11 IDs and talkers:
+MIXED = [5, 66, 311, 12, 123, 78, 419, 29, 193, 330, 87]
+NMEA_ID = {5: ("GP", 5), 12: ("GP", 12), 29: ("GP", 29), 123: ("GP", 36), 66: ("GL", 66),
+           78: ("GL", 78), 87: ("GL", 87), 311: ("GA", 11), 330: ("GA", 30), 419: ("GB", 19),
+           193: ("GQ", 1)}
+SYSTEM_ID = {"GP": 1, "GL": 2, "GA": 3, "GB": 4, "GQ": 5}  # NMEA 4.11 system IDs
+SIGNAL_ID = {"GP": 1, "GL": 1, "GA": 7, "GB": 1, "GQ": 1}  # L1 C/A, L1OF, E1 B/C, B1I, L1 C/A
+FMT = NmeaFormat(talker="GN", version="4.11", no_fix_style="empty", dgps_fields="empty")
+
+
+def mixed_fixes(n_t: int = 3, seed: int = 0, **over: object):
+    return make_fixes(n_t=n_t, prn=MIXED, seed=seed, **over)
+
+
+def test_each_system_has_its_gsa_and_its_gsv_with_ids_as_nmea_4_11_gives_them():
+    fx = mixed_fixes()
+    for i, epoch in enumerate(nmea.render_batch(fx, FMT)):
+        gsa, gsv, other = [], {}, []
+        for ln in sentences(epoch):
+            a, b = parse_both(ln)  # both references read every sentence, checksums checked
+            if a.msgID == "GSA":
+                gsa.append(a)
+            elif a.msgID == "GSV":
+                gsv.setdefault(a.talker, []).append(a)
+            else:
+                other.append(a)
+            assert a.talker == ("GN" if a.msgID in ("GGA", "GSA", "RMC", "VTG") else a.talker)
+        # one GSA per system, in system ID order, listing that system's used satellites
+        assert [int(m.systemId) for m in gsa] == sorted(SYSTEM_ID.values())
+        by_sys = {s: [] for s in SYSTEM_ID.values()}
+        for c, p in enumerate(MIXED):
+            if fx.used[i, c]:
+                talker, ident = NMEA_ID[p]
+                by_sys[SYSTEM_ID[talker]].append(ident)
+        for m in gsa:
+            listed = [getattr(m, f"svid_{k:02d}") for k in range(1, 13)]
+            assert [x for x in listed if x != ""] == by_sys[int(m.systemId)]
+            assert m.HDOP == pytest.approx(fx.hdop[i], abs=0.005)
+        # one run of GSV per talker, every satellite in view under its own talker and ID
+        assert sorted(gsv) == sorted(SYSTEM_ID)
+        for talker, msgs in gsv.items():
+            assert {int(m.signalID) for m in msgs} == {SIGNAL_ID[talker]}
+            assert [m.msgNum for m in msgs] == list(range(1, len(msgs) + 1))
+            assert {m.numMsg for m in msgs} == {len(msgs)}
+            want = sorted(NMEA_ID[p][1] for c, p in enumerate(MIXED)
+                          if fx.in_view[i, c] and NMEA_ID[p][0] == talker)
+            got = sorted(getattr(m, f"svid_{k:02d}") for m in msgs for k in range(1, 5)
+                         if hasattr(m, f"svid_{k:02d}"))
+            assert got == want and msgs[0].numSV == len(want)
+        rmc = next(m for m in other if m.msgID == "RMC")
+        assert rmc.navStatus == "V" and rmc.posMode == "A"
+
+
+def test_the_paths_agree_and_a_system_with_nothing_in_view_still_writes_its_sentences():
+    rng = np.random.default_rng(3)
+    n_t = 70  # above the scalar path's batch size
+    in_view = rng.random((n_t, len(MIXED))) < 0.7
+    in_view[:, [MIXED.index(311), MIXED.index(330)]] = False  # no Galileo in view
+    mode = rng.choice([1, 2, 3], n_t).astype(np.int8)
+    fx = mixed_fixes(n_t=n_t, seed=3, in_view=in_view, mode=mode)
+    fmts = (FMT, NmeaFormat(talker="GN", version="4.11", sentences=nmea.SENTENCE_TYPES))
+    for fmt in fmts:
+        vec = nmea.render_batch(fx, fmt)
+        assert vec == [nmea.epoch_sentences(fx, i, fmt) for i in range(n_t)]
+    epoch = nmea.epoch_sentences(fx, 0, FMT)
+    assert b"$GAGSV,1,1,00,7*" in epoch
+    # with no fix, every system's GSA is mode 1 with empty fields, its system ID kept
+    k = int(np.flatnonzero(mode == 1)[0])
+    lines = [ln for ln in sentences(nmea.epoch_sentences(fx, k, FMT)) if b"GSA" in ln]
+    assert [ln.split(b"*")[0] for ln in lines] == [
+        b"$GNGSA,A,1,,,,,,,,,,,,,,," + b",%d" % s for s in range(1, 6)]
+
+
+def test_version_2_3_and_a_gps_only_receiver_keep_their_bytes():
+    gps = make_fixes(n_t=60)
+    old = NmeaFormat()
+    assert old.version == "2.3"
+    # 4.11 on a GPS-only constellation: the same sentences plus the IDs at the end
+    new = NmeaFormat(version="4.11")
+    for a, b in zip(nmea.render_batch(gps, old), nmea.render_batch(gps, new), strict=True):
+        for la, lb in zip(sentences(a), sentences(b), strict=True):
+            ba, bb = la.split(b"*")[0], lb.split(b"*")[0]
+            tail = {b"GSA": b",1", b"GSV": b",1", b"RMC": b",V"}.get(ba[3:6], b"")
+            assert bb == ba + tail
+    # 2.3 writes every system's satellites in one GSV run under the profile's talker
+    mixed = nmea.epoch_sentences(mixed_fixes(), 0, NmeaFormat(talker="GN"))
+    assert b"GLGSV" not in mixed and mixed.count(b"GSA") == 1
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"version": 4.11}, "nmea.version: expected one of"),
+    ({"version": "4.0"}, "nmea.version: expected one of"),
+    ({"version": "4.11", "mode_letter": False}, "nmea.mode_letter: expected true with"),
+])
+def test_a_wrong_version_names_the_key(table, message):
+    with pytest.raises(ConfigError, match=message):
+        NmeaFormat.from_dict(table)
+
+
+def test_the_ids_are_those_of_the_systems_table():
+    # (independent of the writer: the table's own numbers, as NMEA 4.11 lists them)
+    for number, (talker, ident) in NMEA_ID.items():
+        s = systems.system_of(number)
+        assert (s.talker, number - s.nmea_offset) == (talker, ident)
