@@ -5,6 +5,8 @@ the same bytes."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from test_nmea import make_fixes, parse_both, sentences
@@ -119,3 +121,61 @@ def test_the_ids_are_those_of_the_systems_table():
     for number, (talker, ident) in NMEA_ID.items():
         s = systems.system_of(number)
         assert (s.talker, number - s.nmea_offset) == (talker, ident)
+
+
+# --- a receiver that tracks GPS and GLONASS, end to end -------------------------------------
+
+
+def multi_profile(path):
+    """``holux-m1000`` tracking GPS and GLONASS, writing NMEA 4.11 under GN."""
+    from importlib import resources
+
+    text = (resources.files("virtualgps.receiver") / "profiles" / "holux-m1000.toml").read_text()
+    text = text.replace('name = "holux-m1000"', 'name = "two-systems"')
+    text = text.replace('talker = "GP"', 'talker = "GN"\nversion = "4.11"')
+    path.write_text(text + '\n[constellations]\nenabled = true\nsystems = ["GPS", "GLONASS"]\n')
+    return path
+
+
+def test_a_profile_naming_two_systems_tracks_and_writes_both(tmp_path):
+    from test_cli import write_walk
+
+    from virtualgps.cli import main
+    from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
+
+    sets = [f"--tle={BUNDLED_EPHEMERIS_DIR / f'{g}-2017-03-28.tle'}"
+            for g in ("gps-ops", "glo-ops")]
+    walk = write_walk(tmp_path / "walk.jsonl", n=40, dt_s=1.0)
+    out = tmp_path / "out.nmea"
+    prof = multi_profile(tmp_path / "two.toml")
+    assert main(["replay", str(walk), "--out", str(out), "--profile", str(prof), *sets]) == 0
+    used = {1: set(), 2: set()}
+    glgsv = []
+    for ln in out.read_bytes().splitlines(keepends=True):
+        a, _ = parse_both(ln)
+        if a.msgID == "GSA":
+            used[int(a.systemId)] |= {getattr(a, f"svid_{k:02d}") for k in range(1, 13)} - {""}
+        if a.talker == "GL" and a.msgID == "GSV":
+            glgsv += [getattr(a, f"svid_{k:02d}") for k in range(1, 5)
+                      if hasattr(a, f"svid_{k:02d}")]
+    assert glgsv and all(65 <= s <= 96 for s in glgsv)
+    assert used[1] and used[2] and all(65 <= s <= 96 for s in used[2])
+    assert all(1 <= s <= 32 for s in used[1])
+    # GPS alone (the default) on the same walk: no GLONASS in its sentences
+    gps = tmp_path / "gps.nmea"
+    assert main(["replay", str(walk), "--out", str(gps), *sets]) == 0
+    assert b"GL" not in gps.read_bytes()
+
+
+@pytest.mark.parametrize("systems_toml, message", [
+    ('["GPS", "Glonas"]', "unknown satellite system 'Glonas'"),
+    ('"GPS"', "must be a non-empty list of names"),
+    ('["GPS", "SBAS"]', "SBAS is not a system tracked"),
+])
+def test_a_wrong_system_names_the_key(systems_toml, message):
+    from virtualgps.receiver.profiles import build_profile
+
+    with pytest.raises(ConfigError, match=message) as e:
+        build_profile({"name": "x", "constellations": {"enabled": True,
+                                                       "systems": json.loads(systems_toml)}})
+    assert e.value.key == "systems"

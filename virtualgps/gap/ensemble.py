@@ -130,7 +130,7 @@ class Geometry:
 
 
 _SCENES: dict[str | None, object] = {}
-_EPHEMERIDES: dict[str, object] = {}
+_EPHEMERIDES: dict[tuple[str, str], object] = {}
 _SKIES: OrderedDict[tuple, Sky] = OrderedDict()
 
 
@@ -144,18 +144,20 @@ def _scene(path: str | None):
     return _SCENES[path]
 
 
-def _ephemeris(path: str):
-    if path not in _EPHEMERIDES:
+def _ephemeris(path: str, letters: str):
+    if (path, letters) not in _EPHEMERIDES:
         from virtualgps.sky import ephemeris as eph
 
-        _EPHEMERIDES[path] = eph.load_ephemeris_file(Path(path))
-    return _EPHEMERIDES[path]
+        _EPHEMERIDES[path, letters] = eph.load_ephemeris_file(Path(path), letters)
+    return _EPHEMERIDES[path, letters]
 
 
 def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
-    """The receiver of a run (scene and ephemeris loaded once per process)."""
+    """The receiver of a run (scene and ephemeris loaded once per process; the ephemeris's
+    satellites of the systems the profile tracks)."""
     scene = _scene(setup.scene_path)  # (its own georeference is the setup's)
-    return Receiver(profile, _ephemeris(setup.tle_path), scene, setup.georef, setup.sky_shift_s)
+    return Receiver(profile, _ephemeris(setup.tle_path, profile.constellations.letters()),
+                    scene, setup.georef, setup.sky_shift_s)
 
 
 def _sky_key(setup: RunSetup, profile: Profile) -> tuple:

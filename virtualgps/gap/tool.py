@@ -138,7 +138,7 @@ def diagnose(
     say = progress or (lambda s: None)
     runs_in, scene, scene_dir, tle, table, source = load_inputs(inp)
     profile = build_profile(table, source)
-    ephem = _ephemeris(tle)
+    ephem = _ephemeris(tle, profile.constellations.letters())
 
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
@@ -370,9 +370,10 @@ def located_groups(where: list[dict]) -> list[dict]:
     return out
 
 
-def _ephemeris(path: str):
-    """The ephemeris at ``path`` (TLE set, RINEX navigation file or lookup table)."""
-    return eph.load_ephemeris_file(Path(path))
+def _ephemeris(path: str, letters: str):
+    """The ephemeris at ``path`` (TLE set, RINEX navigation file or lookup table), its
+    satellites of the systems ``letters`` (RINEX letters)."""
+    return eph.load_ephemeris_file(Path(path), letters)
 
 
 def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: str,

@@ -17,6 +17,7 @@ from typing import Any
 
 from virtualgps.exceptions import ConfigError, InputFileError, VirtualGPSError
 from virtualgps.receiver.nmea_format import NmeaFormat
+from virtualgps.sky import systems as _sys
 from virtualgps.sky.skymask import SKY_MASK_MAX_CELL, SkyMaskParams
 from virtualgps.tomlfile import read_toml, toml_key_line
 
@@ -285,6 +286,29 @@ class FoliageParams:
 
 
 @dataclass(frozen=True)
+class ConstellationsParams:
+    """``constellations``: the satellite systems the receiver tracks, by name or RINEX letter
+    (GPS, GLONASS, Galileo, BeiDou, QZSS; :mod:`virtualgps.sky.systems`). Disabled: GPS alone,
+    as the M-1000's MTK generation. Each system's satellites come from its own TLE set (``--tle``
+    once per set, or the sets chosen per system for the run's time); NMEA 4.11 output
+    (``[nmea] version``) lists them per system.
+
+    So far the other systems' satellites are tracked with GPS's signal and range-error model and
+    one receiver clock is solved (issue 23: per-system signal, UERE and the inter-system clock
+    offset come next).
+    """
+
+    enabled: bool = False
+    systems: tuple[str, ...] = ("GPS",)
+
+    def letters(self) -> str:
+        """RINEX letters of the systems tracked, e.g. ``"GR"`` (``"G"`` when disabled)."""
+        if not self.enabled:
+            return "G"
+        return "".join(dict.fromkeys(_sys.system_named(n).letter for n in self.systems))
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -317,6 +341,7 @@ class Profile:
     multipath: MultipathParams = field(default_factory=MultipathParams)
     foliage: FoliageParams = field(default_factory=FoliageParams)
     sky_mask: SkyMaskParams = field(default_factory=SkyMaskParams)
+    constellations: ConstellationsParams = field(default_factory=ConstellationsParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -355,6 +380,7 @@ _TABLES = {
     "nlos": NlosParams,
     "multipath": MultipathParams,
     "foliage": FoliageParams,
+    "constellations": ConstellationsParams,
 }
 
 
@@ -430,6 +456,12 @@ def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
         elif isinstance(default, int):
             if isinstance(value, bool) or not isinstance(value, int):
                 raise SettingError(prefix, key, f"{full} must be an integer, got {value!r}")
+        elif isinstance(default, tuple):  # (a list of names)
+            if not isinstance(value, list) or not value or not all(
+                    isinstance(v, str) for v in value):
+                raise SettingError(prefix, key, f"{full} must be a non-empty list of names, "
+                                   f"got {value!r}")
+            value = tuple(value)
         choices = _CHOICES.get((prefix, key))
         if choices and value not in choices:
             raise SettingError(prefix, key, f"{full} must be one of {choices}, got {value!r}")
@@ -580,6 +612,14 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
     if prof.dop_error.enabled and prof.noise.model != "none":
         raise SettingError("noise", "model", 'dop_error replaces the baseline noise: set '
                            'noise.model = "none" (or disable dop_error)')
+    try:
+        prof.constellations.letters()
+        bad = [n for n in prof.constellations.systems if _sys.system_named(n) is _sys.SBAS]
+        if bad:
+            raise ValueError("SBAS is not a system tracked for the fix (see [sbas])")
+    except ValueError as exc:
+        raise SettingError("constellations", "systems", f"constellations.systems: {exc}") \
+            from None
     ce = prof.correlated_error
     if ce.enabled and ce.domain == "range" and not prof.dop_error.enabled:
         raise SettingError("correlated_error", "domain", 'correlated_error.domain = "range" '

@@ -208,8 +208,11 @@ def load_scene_for(cfg: RunConfig):  # -> (Scene | None, Georef | None, default 
     return scene, georef, scene_tle
 
 
+PROFILE_SYSTEMS = "profile"  # load_ephemeris: the systems the profile's receiver tracks
+
+
 def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float | None = None,
-                   systems_kept: str | None = "G"):
+                   systems_kept: str | None = PROFILE_SYSTEMS):
     """Load the ephemeris :func:`virtualgps.sky.skytime.choose_tle_set` picks for a run starting at
     ``t_start_unix_s`` (``--tle``, else the set whose epoch lies nearest among the scene's, the
     bundled and the fetched sets), and log the one line that says which and why.
@@ -218,14 +221,17 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
     ----------
     scene_tle : the scene's set, or None
     t_start_unix_s : the run's start, UTC seconds (None: now, a live run on the wall clock)
-    systems_kept : RINEX letters of the systems kept (default GPS: what receivers track;
-        None: every system, as ``sky`` lists them)
+    systems_kept : RINEX letters of the systems kept (default: those the profile's receiver
+        tracks, ``[constellations]``, GPS alone without it; None: every system, as ``sky``
+        lists them)
 
     Returns
     -------
     ephemeris : Constellation, BroadcastEphemeris or LookupTable
     path : the file it came from
     """
+    if systems_kept == PROFILE_SYSTEMS:
+        systems_kept = cfg.profile.constellations.letters()
     if cfg.tle is not None and len(cfg.tle) > 1:  # one TLE set per group
         paths = [Path(p) for p in cfg.tle]
         for p in paths:
