@@ -42,6 +42,7 @@ from virtualgps.receiver.solution import (
     Processes,
     _carried,
     _dop_shared,
+    clock_columns,
     dop,
     error_processes,
     position_errors,
@@ -231,9 +232,11 @@ def simulate(
     used = select_used(seen, sky.el_deg, prof.sky.max_channels)
     n_used = used.sum(axis=-1)
     starting = t < state.no_fix_until_t_unix_s
-    hdop, vdop, pdop = dop(sky.los_enu, used) if not shared_sky else _dop_shared(sky, used)
+    clocks = clock_columns(rx.ephemeris.prn)  # (one clock per system tracked)
+    hdop, vdop, pdop = (dop(sky.los_enu, used, clocks) if not shared_sky
+                        else _dop_shared(sky, used, clocks))
 
-    err = position_errors(prof, sky, used, n_used, z, layout, processes)
+    err = position_errors(prof, sky, used, n_used, z, layout, processes, clocks)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)

@@ -301,7 +301,8 @@ class WlsGeometry:
     """The part of a weighted least-squares fix that depends on the geometry and weights alone
     (:func:`wls_geometry`): several sets of range errors (position, Doppler) share it.
 
-    g : (..., n_sat, n_states) rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D)
+    g : (..., n_sat, n_states) rows [-e, -n, -u, 1] (3D) or [-e, -n, 1] (2D); with several
+        systems' clocks, the 1 is the satellite's row of ``clocks``
     w : (..., n_sat) weights 1 / sigma^2 of the used satellites, 0 for the others
     gw_t : (..., n_states, n_sat) G^T W
     q : (..., n_states, n_states) (G^T W G)^-1 (of the identity where ``ok`` is False)
@@ -309,6 +310,7 @@ class WlsGeometry:
     regular : (...) bool, |det(G^T W G)| > 1e-12
     n_used : (...) int, used satellites
     w_held : (...) float, the held height's weight (``held_height``), else None
+    n_pos : position states, 3 (3D) or 2 (2D); the rest are clocks
     """
 
     g: np.ndarray
@@ -319,29 +321,64 @@ class WlsGeometry:
     regular: np.ndarray
     n_used: np.ndarray
     w_held: np.ndarray | None
+    n_pos: int = 3
+
+
+def clock_states(used: np.ndarray, clocks: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The clock columns of G and which of them the used satellites determine.
+
+    One receiver clock per satellite system: ranges of different systems differ by an
+    inter-system time offset (system time scales, receiver biases), which a multi-system
+    receiver solves as one more unknown per extra system (Misra & Enge, section 6.1; RTKLIB
+    solves one clock per system alike). A system none of whose satellites is used leaves its
+    clock undetermined: it is left out (a unit diagonal in the normal matrix, nothing else in
+    its row), so the other states come out as without it.
+
+    Parameters
+    ----------
+    used : (..., n_sat) bool
+    clocks : (n_sat, k) 0/1, each satellite's system
+        (:func:`virtualgps.receiver.solution.clock_columns`); None: one clock
+
+    Returns
+    -------
+    columns : (..., n_sat, k) the clock columns (k = 1 without ``clocks``)
+    idle : (..., k) bool, clocks no used satellite determines (None without ``clocks``)
+    """
+    if clocks is None:
+        return np.ones(used.shape + (1,)), None
+    idle = ~(used[..., None] & (clocks > 0)).any(axis=-2)
+    return np.broadcast_to(clocks, used.shape + clocks.shape[-1:]), idle
 
 
 def wls_geometry(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, n_states: int = 4,
-    held_height: bool = False,
+    held_height: bool = False, clocks: np.ndarray | None = None,
 ) -> WlsGeometry:
     """The geometry part of :func:`wls_fix` (the same parameters), for :func:`wls_solve`."""
     u = -np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num: slow on tiny arrays)
-    ones = np.ones(los_enu.shape[:-1] + (1,))
-    g = np.concatenate([u, ones] if n_states == 4 else [u[..., :2], ones], axis=-1)
+    n_pos = 3 if n_states == 4 else 2
+    clk, idle = clock_states(used, clocks)
+    g = np.concatenate([u[..., :n_pos], clk], axis=-1)
     w = np.where(used, 1.0 / np.square(sigma_m), 0.0)
     gw_t = np.swapaxes(g * w[..., None], -1, -2)
     # matmul, not einsum: the same sums, ten times faster over thousands of epochs
     normal = gw_t @ g
     n_used = used.sum(axis=-1)
-    ok = n_used >= n_states
+    n_need = n_states
+    if idle is not None:
+        c = n_pos + np.arange(idle.shape[-1])
+        normal[..., c, c] += idle
+        n_need = n_pos + (~idle).sum(axis=-1)
+    ok = n_used >= n_need
     w_held = None
     if held_height and n_states == 4:
         with np.errstate(invalid="ignore", divide="ignore"):
             w_held = np.trace(normal[..., :3, :3], axis1=-2, axis2=-1) / n_used
         normal[..., 2, 2] += w_held
-        ok = n_used >= 3
-    eye = np.eye(n_states)
+        ok = n_used >= n_need - 1
+    eye = np.eye(g.shape[-1])
     safe = np.where(ok[..., None, None], normal, eye)
     regular = np.abs(np.linalg.det(safe)) > 1e-12
     try:
@@ -349,7 +386,7 @@ def wls_geometry(
     except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: leave it out
         ok &= regular
         q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
-    return WlsGeometry(g, w, gw_t, q, ok, regular, n_used, w_held)
+    return WlsGeometry(g, w, gw_t, q, ok, regular, n_used, w_held, n_pos)
 
 
 def wls_solve(
@@ -371,7 +408,6 @@ def wls_solve(
     err_enu_m, sigma_enu_m : (..., 3) float, metres, as :func:`wls_fix`
     """
     g, w, q, ok = geom.g, geom.w, geom.q, geom.ok
-    n_states = q.shape[-1]
     rhs = geom.gw_t @ np.where(used, range_err_m, 0.0)[..., None]
     sol = (q @ rhs)[..., 0]
     # A nearly singular geometry gives a huge solution: treat it as none (PDOP > 1e4).
@@ -389,7 +425,7 @@ def wls_solve(
         cov = q @ mid @ q
     diag = np.sqrt(np.abs(np.diagonal(cov, axis1=-2, axis2=-1)))
     sigma[..., :2] = diag[..., :2]
-    if n_states == 4:
+    if geom.n_pos == 3:
         err[..., 2] = sol[..., 2]
         sigma[..., 2] = diag[..., 2]
     return (np.where(ok_err[..., None], err, np.nan),
@@ -399,6 +435,7 @@ def wls_solve(
 def wls_fix(
     los_enu: np.ndarray, used: np.ndarray, sigma_m: np.ndarray, range_err_m: np.ndarray,
     n_states: int = 4, held_height: bool = False, error_sigma_m: np.ndarray | None = None,
+    clocks: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position error of a weighted least-squares fix made from erroneous ranges, and its sigma.
 
@@ -424,6 +461,9 @@ def wls_fix(
         variance is the used ranges' mean error-to-weight variance ratio over its weight
     error_sigma_m : (..., n_sat) float, metres, the range errors' standard deviations for the
         covariance (None: ``sigma_m``)
+    clocks : (n_sat, k) 0/1, one receiver clock per satellite system (:func:`clock_states`):
+        the clock column becomes k, each state then needs one more used satellite; None: one
+        clock (``n_states`` as given)
 
     Returns
     -------
@@ -432,5 +472,5 @@ def wls_fix(
     sigma_enu_m : (..., 3) float, metres, sqrt(diag Q) of east, north and up (up NaN for a 2D
         fix); NaN with fewer than ``n_states`` used satellites or a singular geometry
     """
-    geom = wls_geometry(los_enu, used, sigma_m, n_states, held_height)
+    geom = wls_geometry(los_enu, used, sigma_m, n_states, held_height, clocks)
     return wls_solve(geom, used, range_err_m, error_sigma_m)

@@ -293,9 +293,9 @@ class ConstellationsParams:
     once per set, or the sets chosen per system for the run's time); NMEA 4.11 output
     (``[nmea] version``) lists them per system.
 
-    So far the other systems' satellites are tracked with GPS's signal and range-error model and
-    one receiver clock is solved (issue 23: per-system signal, UERE and the inter-system clock
-    offset come next).
+    The fix solves one receiver clock per system used (the inter-system time offsets); so far
+    the other systems' satellites are tracked with GPS's signal and range-error model (issue
+    23: per-system signal and UERE come next).
     """
 
     enabled: bool = False

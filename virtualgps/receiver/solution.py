@@ -17,6 +17,7 @@ from virtualgps.receiver import errors
 from virtualgps.receiver.profiles import CorrelatedErrorParams, Profile
 from virtualgps.receiver.skyview import Sky
 from virtualgps.receiver.state import ReceiverState
+from virtualgps.sky import systems
 
 
 def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) -> np.ndarray:
@@ -41,7 +42,35 @@ def usarsim_sigma_m(n_sats: np.ndarray, max_noise_m: float, min_noise_m: float) 
     return (slope * n + intercept) / 3.0  # Eq. 3
 
 
-def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=16)
+def _clock_columns(prn: tuple[int, ...]) -> np.ndarray | None:
+    letters = systems.letters(np.asarray(prn, dtype=np.int64))
+    # (SBAS ranges, where used, share GPS time; a number of no known system counts as GPS)
+    letters = np.where(np.isin(letters, ("S", "?")), "G", letters)
+    kinds = list(dict.fromkeys(letters.tolist()))
+    if len(kinds) < 2:
+        return None
+    return (letters[:, None] == np.array(kinds)[None, :]).astype(float)
+
+
+def clock_columns(prn: np.ndarray) -> np.ndarray | None:
+    """Each satellite's receiver-clock unknown: one per satellite system of the constellation
+    (:func:`virtualgps.receiver.errors.clock_states`).
+
+    Parameters
+    ----------
+    prn : (n_sat,) int, the satellites' numbers (:mod:`virtualgps.sky.systems`)
+
+    Returns
+    -------
+    clocks : (n_sat, k) float 0/1, one column per system in order of first appearance; None
+        for a single system (one clock, as before)
+    """
+    return _clock_columns(tuple(np.asarray(prn, dtype=np.int64).tolist()))
+
+
+def dop(los_enu: np.ndarray, used: np.ndarray, clocks: np.ndarray | None = None
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dilutions of precision of the used satellites' geometry, as an MTK receiver reports them.
 
     G has a row [-e, -n, -u, 1] per used satellite (unit line of sight, receiver clock);
@@ -57,28 +86,41 @@ def dop(los_enu: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     satellites, ``1.62,1.31,0.95``) come out to the printed digits from their GSV azimuths and
     elevations; the 3-state HDOP with the height taken as exact (2.75 for mtk-3301) does not.
 
+    A receiver of several systems solves one clock per system (``clocks``; a system with no
+    satellite used leaves its clock out): each used system's clock takes one satellite, so the
+    3D fix needs 3 + (systems used) satellites and the DOP is that of the larger G.
+
     Parameters
     ----------
     los_enu : (..., n_sat, 3) unit vectors to the satellites, ENU
     used : (..., n_sat) bool
+    clocks : (n_sat, k) 0/1, each satellite's system (:func:`clock_columns`); None: one clock
 
     Returns
     -------
-    hdop, vdop, pdop : (...) float; NaN with fewer than 3 used satellites or a singular geometry
+    hdop, vdop, pdop : (...) float; NaN with fewer than 2 + (systems used) satellites or a
+        singular geometry
     """
     w = used.astype(float)[..., None]
     los = np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num is slow on tiny arrays)
-    g = np.concatenate([-los, np.ones(los_enu.shape[:-1] + (1,))], axis=-1)
+    clk, idle = errors.clock_states(used, clocks)
+    g = np.concatenate([-los, clk], axis=-1)
     normal = np.swapaxes(g * w, -1, -2) @ g  # G^T W G (a matrix product: ~6x einsum's speed)
     n_used = used.sum(axis=-1)
-    normal[..., 2, 2] += n_used == 3  # the held height's row [0, 0, 1, 0] (2D fix)
-    ok = n_used >= 3
-    safe = np.where(ok[..., None, None], normal, np.eye(4))
+    n_clocks = 1
+    if idle is not None:
+        c = 3 + np.arange(idle.shape[-1])
+        normal[..., c, c] += idle
+        n_clocks = (~idle).sum(axis=-1)
+    normal[..., 2, 2] += n_used == 2 + n_clocks  # the held height's row [0, 0, 1, 0] (2D fix)
+    ok = n_used >= 2 + n_clocks
+    eye = np.eye(g.shape[-1])
+    safe = np.where(ok[..., None, None], normal, eye)
     try:
         q = np.linalg.inv(safe)
     except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: find it
         ok &= np.abs(np.linalg.det(safe)) > 1e-9
-        q = np.linalg.inv(np.where(ok[..., None, None], safe, np.eye(4)))
+        q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
     # A nearly singular geometry (e.g. every satellite at one elevation: up and clock can't be
     # told apart) inverts to huge or negative variances; a real one has PDOP < 1e4.
     diag = np.diagonal(q, axis1=-2, axis2=-1)[..., :3]
@@ -210,6 +252,7 @@ def position_errors(
     z: np.ndarray,
     layout: dict[str, int],
     processes: Processes,
+    clocks: np.ndarray | None = None,
 ) -> PositionErrors:
     """The position error of each epoch under the profile's error model.
 
@@ -217,10 +260,11 @@ def position_errors(
     ``dop_error``: per-satellite range errors with the UERE sigma of their elevation (white, or
     Gauss-Markov with ``correlated_error`` in the range domain plus white receiver noise),
     solved by weighted least squares over the used satellites: 3D with >= 4, 2D (height held)
-    with 3; ``nlos`` adds the reflected path's excess, ``multipath`` a Gauss-Markov error on
-    each satellite received directly (its sigma from the elevation and the distance to the
-    nearest wall: :func:`virtualgps.receiver.errors.multipath_sigma_m`). ``correlated_error`` in the
-    position domain adds Gauss-Markov E/N/U errors.
+    with 3 (one more for each further system's clock, ``clocks``); ``nlos`` adds the reflected
+    path's excess, ``multipath`` a Gauss-Markov error on each satellite received directly (its
+    sigma from the elevation and the distance to the nearest wall:
+    :func:`virtualgps.receiver.errors.multipath_sigma_m`). ``correlated_error`` in the position
+    domain adds Gauss-Markov E/N/U errors.
 
     Parameters
     ----------
@@ -232,6 +276,7 @@ def position_errors(
         :func:`virtualgps.receiver.errors.normals_from_uniforms`)
     layout : from :func:`~virtualgps.receiver.state.draw_layout`
     processes : the batch's Gauss-Markov processes, from :func:`error_processes`
+    clocks : (n_sat, k) each satellite's system (:func:`clock_columns`); None: one clock
 
     Returns
     -------
@@ -244,7 +289,9 @@ def position_errors(
     range_rms = np.full(n_t, np.nan)
     gm_state = mp_state = None
     geom3 = geom2 = k = None
-    three_d = n_used >= 4
+    _, idle = errors.clock_states(used, clocks)
+    n_clocks = 1 if idle is None else (~idle).sum(axis=-1)
+    three_d = n_used >= 3 + n_clocks
     two_d = np.zeros(n_t, bool)
     held_gain = np.zeros((n_t, 2))
     # The UERE sigma of each satellite (dop_error's weights; correlated_error's shape)
@@ -294,14 +341,15 @@ def position_errors(
             err_var = (sigma_i**2 if err_var is None else err_var) \
                 + np.where(sky.blocked, 0.0, sigma_mp**2)
         err_sigma = None if err_var is None else np.sqrt(err_var)
-        geom3 = errors.wls_geometry(sky.los_enu, used, sigma_i, n_states=4)
+        geom3 = errors.wls_geometry(sky.los_enu, used, sigma_i, n_states=4, clocks=clocks)
         e3, sigma_enu = errors.wls_solve(geom3, used, eps, error_sigma_m=err_sigma)
         three_d = three_d & np.isfinite(e3[:, 0])
-        two_d = n_used == 3
+        two_d = n_used == 2 + n_clocks
         e2 = np.zeros_like(e3)
-        k = np.flatnonzero(two_d)  # solve 2D (height held) only where three are used
+        k = np.flatnonzero(two_d)  # solve 2D (height held) only where one is missing
         if k.size:
-            geom2 = errors.wls_geometry(sky.los_enu[k], used[k], sigma_i[k], n_states=3)
+            geom2 = errors.wls_geometry(sky.los_enu[k], used[k], sigma_i[k], n_states=3,
+                                        clocks=clocks)
             e2[k] = errors.wls_solve(geom2, used[k], eps[k])[0]
             # A held height off by dh leaves u_up dh in each range's residual (rows [-e, -n,
             # -u, 1]), which the 3-state solution moves into east/north: its response to 1 m.
@@ -310,7 +358,7 @@ def position_errors(
             # The 2D fix's own sigmas (GST), the held height counted as a measurement.
             sigma_enu[k] = errors.wls_fix(
                 sky.los_enu[k], used[k], sigma_i[k], eps[k], held_height=True,
-                error_sigma_m=None if err_sigma is None else err_sigma[k])[1]
+                error_sigma_m=None if err_sigma is None else err_sigma[k], clocks=clocks)[1]
         two_d &= np.isfinite(e2[:, 0])
         enu = enu + np.where(three_d[:, None], e3, np.where(two_d[:, None], e2, 0.0))
         var += np.square(sigma_enu)
@@ -384,13 +432,14 @@ def _uere_zenith_m(uere_args: tuple[float, ...]) -> np.ndarray:
     return errors.uere_sigma_m(np.array(90.0), *uere_args)
 
 
-def _dop_shared(sky: Sky, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _dop_shared(sky: Sky, used: np.ndarray, clocks: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dop` for an ensemble sharing one sky: seeds that use the same satellites at
     every epoch (the paper's model, any model without tracking noise) share the result."""
     last = _LAST_DOP[0]
     if last is not None and last[0] is sky and np.array_equal(last[1], used):
         return last[2]
-    out = dop(sky.los_enu, used)
+    out = dop(sky.los_enu, used, clocks)
     _LAST_DOP[0] = (sky, used.copy(), out)
     return out
 
