@@ -179,3 +179,36 @@ def test_a_wrong_system_names_the_key(systems_toml, message):
         build_profile({"name": "x", "constellations": {"enabled": True,
                                                        "systems": json.loads(systems_toml)}})
     assert e.value.key == "systems"
+
+
+@pytest.mark.e2e
+def test_gpsd_reports_each_systems_satellites_with_its_gnssid(tmp_path):
+    import os
+
+    from test_e2e import GPSD, Daemon, sky_msgs, tpv3, watch_gpsd
+
+    from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
+
+    if GPSD is None and not os.environ.get("CI"):
+        pytest.skip("gpsd not installed")
+    assert GPSD, "gpsd must be installed in CI (the README's test command installs it)"
+    sets = [f"--tle={BUNDLED_EPHEMERIS_DIR / f'{g}-2017-03-28.tle'}"
+            for g in ("gps-ops", "glo-ops")]
+    daemon = Daemon(tmp_path, "--profile", str(multi_profile(tmp_path / "two.toml")),
+                    "--scene", "none", "--origin", "52.14,11.64,100", "--poses", "demo", *sets)
+    try:
+        messages = watch_gpsd(tmp_path, daemon.link, 60.0,
+                              lambda m: len(tpv3(m)) >= 3 and len(sky_msgs(m)) >= 3,
+                              probe=False)
+    finally:
+        code, err = daemon.stop()
+    assert code == 0, err
+    assert len(tpv3(messages)) >= 3, f"gpsd reported no 3D fix; daemon stderr: {err}"
+    sats = sky_msgs(messages)[-1]["satellites"]
+    by = {}
+    for s in sats:
+        by.setdefault(s["gnssid"], []).append(s)
+    assert set(by) == {0, 6}  # u-blox gnssId numbering, as gpsd reports it: GPS 0, GLONASS 6
+    assert all(1 <= s["PRN"] <= 32 and s["svid"] == s["PRN"] for s in by[0])
+    assert all(65 <= s["PRN"] <= 96 and s["svid"] == s["PRN"] - 64 for s in by[6])
+    assert any(s["used"] for s in by[0]) and any(s["used"] for s in by[6])
