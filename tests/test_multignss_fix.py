@@ -95,8 +95,78 @@ def test_a_fix_needs_one_satellite_more_for_each_system_used(n_gps, n_glo, fix):
     sky = _sky(used.shape)
     layout = draw_layout(prof, PRN.size)
     z = np.random.default_rng(0).normal(size=(1, max(layout.values()) + PRN.size))
-    err = position_errors(prof, sky, used, used.sum(axis=1), z, layout, {}, clocks)
+    err = position_errors(prof, sky, used, used.sum(axis=1), z, layout, {}, PRN)
     assert (bool(err.three_d[0]), bool(err.two_d[0])) == (fix == "3d", fix == "2d")
+
+
+def _two_systems(**constellations):
+    from virtualgps.receiver.profiles import build_profile, load_profile_dict
+
+    table, _ = load_profile_dict("holux-m1000")
+    table["constellations"] = {"enabled": True, "systems": ["GPS", "GLONASS"], **constellations}
+    table["correlated_error"] = {"enabled": False}
+    return build_profile(table)
+
+
+def test_each_system_has_its_signal_in_space_error():
+    from virtualgps.receiver.solution import position_errors
+    from virtualgps.receiver.state import draw_layout
+
+    used = np.ones((1, PRN.size), bool)
+    sky = _sky(used.shape)
+    for prof, glo_factor in ((_two_systems(), 2.7), (_two_systems(sis_factor={"GLONASS": 1.5}),
+                                                     1.5)):
+        d = prof.dop_error
+        layout = draw_layout(prof, PRN.size)
+        z = np.zeros((1, max(layout.values()) + PRN.size))
+        err = position_errors(prof, sky, used, used.sum(axis=1), z, layout, {}, PRN)
+        sis = np.where(GLO, d.sis_m * glo_factor, d.sis_m)
+        want = np.sqrt(sis**2 + (errors.iono_obliquity(EL) * d.iono_zenith_m) ** 2
+                       + (errors.tropo_obliquity(EL) * d.tropo_zenith_m) ** 2 + d.rx_noise_m**2
+                       + (d.multipath_a_m + d.multipath_b_m * np.exp(-EL / 10.0)) ** 2)
+        np.testing.assert_allclose(err.uere_sigma_m[0], want, rtol=1e-12)
+    # the GPS-only profile: GPS's sigma for every satellite, whatever their numbers
+    from dataclasses import replace
+
+    from virtualgps.receiver.profiles import load_profile
+
+    plain = load_profile("holux-m1000")
+    plain = replace(plain, correlated_error=replace(plain.correlated_error, enabled=False))
+    err = position_errors(plain, sky, used, used.sum(axis=1), z, draw_layout(plain, PRN.size),
+                          {}, PRN)
+    assert np.ptp(err.uere_sigma_m[0] - errors.uere_sigma_m(EL, plain.dop_error.sis_m, 2.0,
+                                                           0.2, 0.5, 0.13, 0.53)) < 1e-12
+
+
+def test_each_system_has_its_signal_level():
+    from virtualgps.receiver.core import tracked_cn0
+    from virtualgps.receiver.state import ReceiverState
+
+    prof = _two_systems(cn0_offset_db={"GLONASS": -2.5})
+    off = prof.constellations.per_satellite(PRN, "cn0_offset_db", 0.0)
+    np.testing.assert_array_equal(off, np.where(GLO, -2.5, 0.0))
+    sky = _sky((1, PRN.size))
+    fade = np.zeros((1, PRN.size))
+    procs = {"fade": (fade, np.zeros(PRN.size))}
+    state = ReceiverState()
+    a = tracked_cn0(prof, sky, np.array([np.inf]), state, procs)[0]
+    b = tracked_cn0(prof, sky, np.array([np.inf]), state, procs, off)[0]
+    np.testing.assert_allclose((b - a)[np.isfinite(a) & np.isfinite(b)],
+                               off[np.isfinite(a[0]) & np.isfinite(b[0])])
+
+
+@pytest.mark.parametrize("table, key, message", [
+    ({"sis_factor": {"Glonas": 2.0}}, "sis_factor", "unknown satellite system 'Glonas'"),
+    ({"sis_factor": {"GLONASS": 0.0}}, "sis_factor", r"each factor must be in \(0, 100\]"),
+    ({"sis_factor": [2.0]}, "sis_factor", "must be a table of numbers by name"),
+    ({"cn0_offset_db": {"SBAS": 1.0}}, "cn0_offset_db", "SBAS is not a system tracked"),
+])
+def test_a_wrong_per_system_setting_names_its_key(table, key, message):
+    from virtualgps.exceptions import ConfigError
+
+    with pytest.raises(ConfigError, match=message) as e:
+        _two_systems(**table)
+    assert e.value.key == key
 
 
 def _sky(shape):

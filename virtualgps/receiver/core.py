@@ -104,6 +104,7 @@ def expected_cn0_dbhz(prof: Profile, sky: Sky) -> np.ndarray:
 
 def tracked_cn0(
     prof: Profile, sky: Sky, dt_s: np.ndarray, state: ReceiverState, processes: Processes,
+    cn0_offset_db: float | np.ndarray = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """C/N0 and tracking of every satellite (``cn0_tracking``).
 
@@ -114,6 +115,7 @@ def tracked_cn0(
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
     state : receiver state before the batch
     processes : the batch's Gauss-Markov processes (the fades), from :func:`error_processes`
+    cn0_offset_db : (n_sat,) or scalar, dB added per satellite (its system's signal level)
 
     Returns
     -------
@@ -124,7 +126,8 @@ def tracked_cn0(
     ct = prof.cn0_tracking
     n_t, n_sat = sky.el_deg.shape
     fade, fade0 = processes["fade"]
-    cn0 = ct.cn0_zenith_dbhz + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade
+    cn0 = (ct.cn0_zenith_dbhz + cn0_offset_db
+           + signals.antenna_gain_db(sky.el_deg, ct.horizon_loss_db) + fade)
     above = sky.el_deg >= 0.0  # NaN (no ephemeris): False
     # Blocked: no signal, unless a reflection brings it in, weaker by the reflection loss.
     cn0 = cn0 - sky.nlos_loss_db - sky.foliage_db
@@ -213,15 +216,18 @@ def simulate(
     # even column), made in one pass over the row: the live epoch's per-call costs add up.
     z = errors.normals_from_uniforms(u)
     processes = error_processes(prof, state, dt_s, z, layout, len(rx.ephemeris.prn))
+    # each satellite's system's C/N0 offset (constellations.cn0_offset_db; 0.0 for GPS alone)
+    cn0_offset_db = prof.constellations.per_satellite(rx.ephemeris.prn, "cn0_offset_db", 0.0)
     if prof.cn0_tracking.enabled:
-        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, processes)
+        cn0, usable, track_state = tracked_cn0(prof, sky, dt_s, state, processes,
+                                               cn0_offset_db)
         seen = usable & sky.above_mask & pose_valid[:, None]
     else:
         track_state = {}
         seen = sky.above_mask & (~sky.blocked | sky.nlos) & pose_valid[:, None]
         cn0 = cn0_from_elevation_dbhz(
             sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
-        )
+        ) + cn0_offset_db
         cn0 = np.where(seen, cn0, np.nan)
     if state.usable_from_t_unix_s is not None:  # start-up: ephemerides still being decoded
         decoded = t[:, None] >= (state.usable_from_t_unix_s if rows
@@ -236,7 +242,7 @@ def simulate(
     hdop, vdop, pdop = (dop(sky.los_enu, used, clocks) if not shared_sky
                         else _dop_shared(sky, used, clocks))
 
-    err = position_errors(prof, sky, used, n_used, z, layout, processes, clocks)
+    err = position_errors(prof, sky, used, n_used, z, layout, processes, rx.ephemeris.prn)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
     has_fix = pose_valid & (mode > MODE_NONE) & ~starting
     mode = np.where(has_fix, mode, MODE_NONE)

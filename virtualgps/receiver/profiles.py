@@ -293,19 +293,49 @@ class ConstellationsParams:
     once per set, or the sets chosen per system for the run's time); NMEA 4.11 output
     (``[nmea] version``) lists them per system.
 
-    The fix solves one receiver clock per system used (the inter-system time offsets); so far
-    the other systems' satellites are tracked with GPS's signal and range-error model (issue
-    23: per-system signal and UERE come next).
+    The fix solves one receiver clock per system used (the inter-system time offsets). Each
+    system keeps GPS's models but for two settings, tables by system name:
+
+    sis_factor : its signal-in-space range error (orbit and clock of the broadcast ephemeris)
+        as a multiple of GPS's ``dop_error.sis_m``. Defaults: the global average SISREs of
+        Montenbruck, Steigenberger and Hauschild, "Broadcast versus precise ephemerides: a
+        multi-GNSS perspective", GPS Solutions 19 (2015) 321-333, over 2013/14: GPS 0.7 m,
+        GLONASS 1.9, Galileo 1.6 (its early in-orbit-validation years), BeiDou 1.5, QZSS 0.6,
+        hence 2.7, 2.3, 2.1 and 0.86. (SBAS corrections, ``[sbas]``, scale GPS's alone.)
+    cn0_offset_db : dB added to its satellites' C/N0 (default 0 for every system: no measured
+        difference is assumed; the ICDs' minimum received powers, e.g. GPS L1 C/A -158.5 dBW
+        against GLONASS L1OF -161 dBW, bound the signals from below, not what receivers see).
     """
 
     enabled: bool = False
     systems: tuple[str, ...] = ("GPS",)
+    sis_factor: tuple[tuple[str, float], ...] = (("GLONASS", 2.7), ("Galileo", 2.3),
+                                                 ("BeiDou", 2.1), ("QZSS", 0.86))
+    cn0_offset_db: tuple[tuple[str, float], ...] = ()
 
     def letters(self) -> str:
         """RINEX letters of the systems tracked, e.g. ``"GR"`` (``"G"`` when disabled)."""
         if not self.enabled:
             return "G"
         return "".join(dict.fromkeys(_sys.system_named(n).letter for n in self.systems))
+
+    def per_satellite(self, prn: Any, key: str, gps_value: float) -> Any:
+        """The setting ``key`` (``"sis_factor"``, ``"cn0_offset_db"``) of each satellite's
+        system: ``gps_value`` for GPS, SBAS, numbers of no known system and systems the table
+        leaves out.
+
+        prn : (n_sat,) int, satellite numbers (:mod:`virtualgps.sky.systems`)
+        Returns (n_sat,) float, or ``gps_value`` itself when off or every satellite is GPS's.
+        """
+        table = {_sys.system_named(n).letter: float(v) for n, v in getattr(self, key)}
+        if not self.enabled or not table:
+            return gps_value
+        import numpy as np
+
+        letters = _sys.letters(prn)
+        if not np.isin(letters, list(table)).any():
+            return gps_value
+        return np.array([table.get(x, gps_value) for x in letters.tolist()], dtype=float)
 
 
 @dataclass(frozen=True)
@@ -456,6 +486,14 @@ def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
         elif isinstance(default, int):
             if isinstance(value, bool) or not isinstance(value, int):
                 raise SettingError(prefix, key, f"{full} must be an integer, got {value!r}")
+        elif str(fields[key].type).startswith("tuple[tuple[str, float]"):
+            # (a table by name: name = number)
+            if not isinstance(value, dict) or not all(
+                    isinstance(v, int | float) and not isinstance(v, bool)
+                    for v in value.values()):
+                raise SettingError(prefix, key, f"{full} must be a table of numbers by name, "
+                                   f"e.g. {{GLONASS = 1.0}}, got {value!r}")
+            value = tuple(sorted((str(k), float(v)) for k, v in value.items()))
         elif isinstance(default, tuple):  # (a list of names)
             if not isinstance(value, list) or not value or not all(
                     isinstance(v, str) for v in value):
@@ -612,14 +650,17 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
     if prof.dop_error.enabled and prof.noise.model != "none":
         raise SettingError("noise", "model", 'dop_error replaces the baseline noise: set '
                            'noise.model = "none" (or disable dop_error)')
-    try:
-        prof.constellations.letters()
-        bad = [n for n in prof.constellations.systems if _sys.system_named(n) is _sys.SBAS]
-        if bad:
-            raise ValueError("SBAS is not a system tracked for the fix (see [sbas])")
-    except ValueError as exc:
-        raise SettingError("constellations", "systems", f"constellations.systems: {exc}") \
-            from None
+    cs = prof.constellations
+    for key, names in (("systems", cs.systems), ("sis_factor", [n for n, _ in cs.sis_factor]),
+                       ("cn0_offset_db", [n for n, _ in cs.cn0_offset_db])):
+        try:
+            if any(_sys.system_named(n) is _sys.SBAS for n in names):
+                raise ValueError("SBAS is not a system tracked for the fix (see [sbas])")
+        except ValueError as exc:
+            raise SettingError("constellations", key, f"constellations.{key}: {exc}") from None
+    if any(not 0.0 < v <= 100.0 for _, v in cs.sis_factor):
+        raise SettingError("constellations", "sis_factor",
+                           "constellations.sis_factor: each factor must be in (0, 100]")
     ce = prof.correlated_error
     if ce.enabled and ce.domain == "range" and not prof.dop_error.enabled:
         raise SettingError("correlated_error", "domain", 'correlated_error.domain = "range" '

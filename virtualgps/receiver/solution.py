@@ -252,7 +252,7 @@ def position_errors(
     z: np.ndarray,
     layout: dict[str, int],
     processes: Processes,
-    clocks: np.ndarray | None = None,
+    prn: np.ndarray | None = None,
 ) -> PositionErrors:
     """The position error of each epoch under the profile's error model.
 
@@ -276,7 +276,9 @@ def position_errors(
         :func:`virtualgps.receiver.errors.normals_from_uniforms`)
     layout : from :func:`~virtualgps.receiver.state.draw_layout`
     processes : the batch's Gauss-Markov processes, from :func:`error_processes`
-    clocks : (n_sat, k) each satellite's system (:func:`clock_columns`); None: one clock
+    prn : (n_sat,) the satellites' numbers: with several systems, one clock per system
+        (:func:`clock_columns`) and each system's signal-in-space error
+        (``constellations.sis_factor``); None: GPS alone
 
     Returns
     -------
@@ -289,14 +291,15 @@ def position_errors(
     range_rms = np.full(n_t, np.nan)
     gm_state = mp_state = None
     geom3 = geom2 = k = None
+    clocks = clock_columns(prn) if prn is not None else None
     _, idle = errors.clock_states(used, clocks)
     n_clocks = 1 if idle is None else (~idle).sum(axis=-1)
     three_d = n_used >= 3 + n_clocks
     two_d = np.zeros(n_t, bool)
     held_gain = np.zeros((n_t, 2))
     # The UERE sigma of each satellite (dop_error's weights; correlated_error's shape)
-    sigma_i = errors.uere_sigma_m(sky.el_deg, *_uere_args(prof)) if prof.dop_error.enabled \
-        else None
+    sigma_i = (errors.uere_sigma_m(sky.el_deg, _sat_sis_m(prof, prn), *_uere_args(prof)[1:])
+               if prof.dop_error.enabled else None)
     if prof.noise.model == "usarsim":
         sigma = usarsim_sigma_m(n_used, prof.noise.max_noise_m, prof.noise.min_noise_m)
         # (Box-Muller from the paper's two uniforms: the paper draws its noise this way, and
@@ -423,6 +426,19 @@ def _uere_args(prof: Profile) -> tuple[float, ...]:
     sis_k, iono_k = (prof.sbas.sis_factor, prof.sbas.iono_factor) if prof.sbas.enabled else (1, 1)
     return (d.sis_m * sis_k, d.iono_zenith_m * iono_k, d.tropo_zenith_m, d.rx_noise_m,
             d.multipath_a_m, d.multipath_b_m)
+
+
+def _sat_sis_m(prof: Profile, prn: np.ndarray | None) -> float | np.ndarray:
+    """The signal-in-space range error sigma of each satellite, metres: GPS's (with SBAS's
+    factor) for GPS, ``constellations.sis_factor`` times ``dop_error.sis_m`` for the other
+    systems; a float when every satellite has GPS's."""
+    gps = _uere_args(prof)[0]
+    if prn is None:
+        return gps
+    f = prof.constellations.per_satellite(prn, "sis_factor", 0.0)  # (0: GPS's own)
+    if np.ndim(f) == 0:
+        return gps
+    return np.where(f > 0.0, prof.dop_error.sis_m * f, gps)
 
 
 @functools.lru_cache(maxsize=64)
