@@ -126,12 +126,13 @@ def test_the_ids_are_those_of_the_systems_table():
 # --- a receiver that tracks GPS and GLONASS, end to end -------------------------------------
 
 
-def multi_profile(path):
+def multi_profile(path, channels: int = 12):
     """``holux-m1000`` tracking GPS and GLONASS, writing NMEA 4.11 under GN."""
     from importlib import resources
 
     text = (resources.files("virtualgps.receiver") / "profiles" / "holux-m1000.toml").read_text()
     text = text.replace('name = "holux-m1000"', 'name = "two-systems"')
+    text = text.replace("max_channels = 12", f"max_channels = {channels}")
     text = text.replace('talker = "GP"', 'talker = "GN"\nversion = "4.11"')
     path.write_text(text + '\n[constellations]\nenabled = true\nsystems = ["GPS", "GLONASS"]\n')
     return path
@@ -161,6 +162,12 @@ def test_a_profile_naming_two_systems_tracks_and_writes_both(tmp_path):
     assert glgsv and all(65 <= s <= 96 for s in glgsv)
     assert used[1] and used[2] and all(65 <= s <= 96 for s in used[2])
     assert all(1 <= s <= 32 for s in used[1])
+    # more channels than an MTK's 12: more satellites used, still 12 at most per GSA
+    wide = tmp_path / "wide.nmea"
+    prof = multi_profile(tmp_path / "wide.toml", channels=24)
+    assert main(["replay", str(walk), "--out", str(wide), "--profile", str(prof), *sets]) == 0
+    n_used = [int(ln.split(b",")[7]) for ln in wide.read_bytes().splitlines() if b"GGA" in ln]
+    assert max(n_used) > 12
     # GPS alone (the default) on the same walk: no GLONASS in its sentences
     gps = tmp_path / "gps.nmea"
     assert main(["replay", str(walk), "--out", str(gps), *sets]) == 0

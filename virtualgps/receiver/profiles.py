@@ -50,7 +50,9 @@ class SkyParams:
     """What the antenna can see.
 
     elevation_mask_deg : satellites below are not used (the paper: 5 deg)
-    max_channels : at most this many satellites are used (GSA has 12 fields)
+    max_channels : at most this many satellites are used, 4..72 (12: an MTK receiver, whose one
+        GSA has 12 fields; multi-system receivers use more, e.g. a u-blox M8's 72 channels,
+        listed 12 per system's GSA in NMEA 4.11)
     foliage : "block" (foliage-class objects block like buildings) or "ignore"
     """
 
@@ -645,8 +647,8 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
         raise SettingError(
             "sky", "elevation_mask_deg", "sky.elevation_mask_deg must be in [-10, 90)"
         )
-    if not 4 <= prof.sky.max_channels <= 12:
-        raise SettingError("sky", "max_channels", "sky.max_channels must be in [4, 12]")
+    if not 4 <= prof.sky.max_channels <= 72:
+        raise SettingError("sky", "max_channels", "sky.max_channels must be in [4, 72]")
     if prof.dop_error.enabled and prof.noise.model != "none":
         raise SettingError("noise", "model", 'dop_error replaces the baseline noise: set '
                            'noise.model = "none" (or disable dop_error)')
