@@ -435,6 +435,7 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
     job over all the seeds (the seed-against-seed agreement is paired over all of them)."""
     from virtualgps.gap import simulator as sm
     from virtualgps.gap import tool
+    from virtualgps.gap.ensemble import ephemeris_of
     from virtualgps.gap.runs import prepare_runs
     from virtualgps.receiver.profiles import build_profile
     from virtualgps.sky import ephemeris as eph
@@ -442,7 +443,7 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
     inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
                          truth=("static",), scene="none", tle=None, profile="holux-m1000")
     runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
-    ephem = tool._ephemeris(tle)
+    ephem = ephemeris_of(tle, "G")
 
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, tool.SKY_SHIFT_MAX_DAYS)

@@ -292,10 +292,10 @@ def test_nmea_epochs_grouping_partial_gsv_and_corrupt_lines():
     assert list(e.quality) == [0, 1] and list(e.sats_used) == [4, 3]
     assert list(e.sats_used_gsa) == [0, 3] and list(e.sats_in_view) == [5, 5]
     assert list(e.gsv_complete) == [True, False]
-    assert list(e.prn) == [3, 16, 23, 26, 34]
+    assert list(e.prn) == [3, 16, 23, 26, 121]  # (GPGSV's 34: SBAS PRN 121)
     j = {p: k for k, p in enumerate(e.prn)}
     assert e.cn0_dbhz[1, j[26]] == 33.0 and math.isnan(e.cn0_dbhz[0, j[16]])
-    assert e.in_view[0, j[34]] and math.isnan(e.el_deg[0, j[34]]) and not e.in_view[1, j[34]]
+    assert e.in_view[0, j[121]] and math.isnan(e.el_deg[0, j[121]]) and not e.in_view[1, j[121]]
     assert e.used[1, [j[3], j[23], j[26]]].all() and e.used.sum() == 3
     assert e.lat_deg[1] == pytest.approx(44 + 59.0085 / 60) and e.lon_deg[1] < 0
     assert math.isnan(e.lat_deg[0]) and e.hdop[1] == 1.5 and e.pdop[1] == 2.1

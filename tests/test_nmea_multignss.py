@@ -106,6 +106,33 @@ def test_version_2_3_and_a_gps_only_receiver_keep_their_bytes():
     assert b"GLGSV" not in mixed and mixed.count(b"GSA") == 1
 
 
+def test_our_reader_takes_each_talkers_ids_back_to_the_satellites_numbers():
+    from virtualgps.device.nmea.reader import nmea_epochs_from_lines
+
+    fx = mixed_fixes(n_t=4)
+    text = b"".join(nmea.render_batch(fx, FMT)).decode().splitlines()
+    ep = nmea_epochs_from_lines(text)
+    assert set(ep.prn.tolist()) <= set(MIXED)
+    for i in range(4):
+        view = {int(p) for p, v in zip(ep.prn, ep.in_view[i], strict=True) if v}
+        used = {int(p) for p, u in zip(ep.prn, ep.used[i], strict=True) if u}
+        assert view == {p for c, p in enumerate(MIXED) if fx.in_view[i, c]}
+        assert used == {p for c, p in enumerate(MIXED) if fx.used[i, c]}
+        c = MIXED.index(311)
+        if fx.in_view[i, c] and np.isfinite(fx.el_deg[i, c]):
+            k = int(np.flatnonzero(ep.prn == 311)[0])
+            assert ep.el_deg[i, k] == round(fx.el_deg[i, c])
+    # NMEA 4.10 and older: GPS and GLONASS numbers under GP/GN/GL stand as they are, BeiDou
+    # under BD, QZSS by its PRN
+    old = ["$GPGGA,120000.00,5200.0,N,01100.0,E,1,02,0.9,100.0,M,45.0,M,,*",
+           "$GPRMC,120000.00,A,5200.0,N,01100.0,E,0.0,0.0,280317,,,A*",
+           "$GPGSV,1,1,03,05,40,100,35,36,20,200,30,193,10,50,20*", "$GLGSV,1,1,01,70,30,90,30*",
+           "$BDGSV,1,1,01,07,30,90,30*", "$GNGSA,A,3,05,70,,,,,,,,,,,1.5,0.9,1.2*"]
+    ep = nmea_epochs_from_lines([nmea.format_sentence(ln[1:-1]) for ln in old])
+    assert ep.prn.tolist() == [5, 70, 123, 193, 407]
+    assert ep.used[0].tolist() == [True, True, False, False, False]
+
+
 @pytest.mark.parametrize("table, message", [
     ({"version": 4.11}, "nmea.version: expected one of"),
     ({"version": "4.0"}, "nmea.version: expected one of"),

@@ -138,9 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
                      "(repeat, in the order of --real)")
     gap.add_argument("--scene", help="scene folder or scene.toml, or 'none' (default: the "
                      "bundled magdeburg-campus; runs far from it are simulated in open sky)")
-    gap.add_argument("--tle", help="TLE file or RINEX GPS navigation file (default: of the "
-                     "scene's, the bundled and the fetched TLE sets, the one whose epoch lies "
-                     "nearest the log's time)")
+    gap.add_argument("--tle", action="append",
+                     help="TLE file or RINEX GPS navigation file; repeat for one TLE set per "
+                     "system's group (default: for GPS and each other system the profile "
+                     "tracks or the logs list, of the scene's, the bundled and the fetched "
+                     "sets the one whose epoch lies nearest the log's time)")
     gap.add_argument("--profile", default="holux-m1000",
                      help="the profile under test (default holux-m1000)")
     gap.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -563,7 +565,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
         print(f"wrote {out / 'selfcheck.json'} and {out / 'report.html'}")
         return 0
     inp = tool.GapInputs(real=tuple(args.real), truth=tuple(args.truth), scene=args.scene,
-                         tle=args.tle, profile=args.profile)
+                         tle=tuple(args.tle) if args.tle else None, profile=args.profile)
     report, figures, calibrated = tool.diagnose(inp, opts, progress=progress)
     if progress:
         sys.stderr.write("\r\x1b[K")

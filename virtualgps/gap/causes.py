@@ -266,5 +266,6 @@ def constellations(name: str, prn: np.ndarray, in_view: np.ndarray, used: np.nda
     return {"name": "constellations", "kind": "receiver", "run": name, "systems": extra,
             "simulated": [systems.system_named(x).name for x in simulated],
             "what": f"the real receiver also tracks {what}, which the simulation does not: "
-                    "satellites used, HDOP and tracking differ for that reason, and no effect of "
-                    "the profile explains it"}
+                    "satellites used, HDOP and tracking differ for that reason; the "
+                    "constellations effect is tried where the ephemeris holds their satellites "
+                    "(--tle with a set of each system)"}

@@ -110,13 +110,15 @@ def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
 
 
 def choose_effects(sim: Simulator, base: dict, opts: Options, has_mesh: bool, has_gsv: bool,
-                   progress: Callable[[str], None] | None = None) -> Choice:
+                   progress: Callable[[str], None] | None = None,
+                   systems: tuple[str, str] = ("", "G")) -> Choice:
     """The full selection (every unit; the calibrated profile and the ranking) and, where the
-    design allows, the outer test, all simulated in shared batches."""
+    design allows, the outer test, all simulated in shared batches. ``systems``: RINEX letters
+    of the systems the logs list and of those the ephemeris holds (``constellations``)."""
     design: Design = sim.design
 
     def candidates(table: dict):
-        return fx.candidates(table, has_mesh, opts.effects, has_gsv)
+        return fx.candidates(table, has_mesh, opts.effects, has_gsv, *systems)
 
     units = list(range(len(design.units)))
     fit_units = ([len(design.units) + i for i in range(len(design.whole))]

@@ -26,7 +26,7 @@ from virtualgps.receiver.profiles import build_profile, merge
 EFFECT_NAMES = (
     "noise_level", "correlated_error", "dop_error", "cold_start", "nlos", "multipath",
     "foliage", "sky_mask", "cn0_tracking", "elevation_mask", "latency", "static_hold",
-    "nav_filter", "sbas",
+    "nav_filter", "sbas", "constellations",
 )  # fmt: skip
 
 
@@ -178,6 +178,8 @@ def _table_candidate(name: str, table: str, fixed: dict[str, Any], axes: tuple[A
 def candidates(
     profile: dict[str, Any], has_mesh: bool, names: tuple[str, ...] | None = None,
     has_gsv: bool = False,
+    systems_seen: str = "",
+    systems_held: str = "G",
 ) -> tuple[list[Candidate], dict[str, str]]:
     """The effects a profile lacks (or has switched off) that can be tried on it.
 
@@ -188,6 +190,8 @@ def candidates(
     has_mesh : some run is simulated in a scene with a mesh (``nlos``, ``multipath`` need
         walls)
     has_gsv : the real logs list satellites with SNR (``sky_mask`` is learned from them)
+    systems_seen : RINEX letters of the systems the real logs list (``constellations``)
+    systems_held : RINEX letters of the systems the ephemeris holds satellites of
     names : restrict to these effects (``--effects``); None: every one
 
     Returns
@@ -205,14 +209,41 @@ def candidates(
             skipped[name] = "not an effect of DESIGN section 6"
             continue
         table = "sky" if name == "elevation_mask" else name
-        if name != "noise_level" and name != "elevation_mask" and _enabled(profile, table):
+        if name not in ("noise_level", "elevation_mask", "constellations") and _enabled(
+                profile, table):
             continue  # already in the profile
-        c = _candidate(name, profile, baseline, dop, has_mesh, has_gsv)
+        if name == "constellations":
+            c = _constellations(profile, systems_seen, systems_held)
+            if c is None:
+                continue  # (the profile tracks every system the logs list)
+        else:
+            c = _candidate(name, profile, baseline, dop, has_mesh, has_gsv)
         if isinstance(c, str):
             skipped[name] = c
         else:
             out.append(c)
     return out, skipped
+
+
+def _constellations(profile: dict, seen: str, held: str) -> Candidate | str | None:
+    """``constellations``: track the systems the logs list that the profile does not (each a
+    system the ephemeris holds), on top of those it tracks; None when it tracks them all."""
+    from virtualgps.sky import systems as sy
+
+    own = profile.get("constellations", {})
+    tracked = ("".join(sy.system_named(n).letter for n in own.get("systems", ["GPS"]))
+               if own.get("enabled") else "G")
+    extra = [x for x in seen if x not in tracked]
+    if not extra:
+        return None
+    names = {x: sy.system_named(x).name for x in "GRECJ"}
+    usable = [x for x in extra if x in held]
+    if not usable:
+        return (f"the logs list {', '.join(names[x] for x in extra)} satellites but the "
+                f"ephemeris holds none: give --tle with a set of them")
+    on = {"enabled": True, "systems": [names[x] for x in "GRECJ" if x in tracked + "".join(
+        usable)]}
+    return Candidate("constellations", (), lambda p: {"constellations": dict(on)}, ("systems",))
 
 
 # The UERE budget's textbook values (profiles.DopErrorParams), scaled as a whole by dop_error.

@@ -13,6 +13,7 @@ ensemble's result does not depend on how its seeds are split into jobs or where 
 from __future__ import annotations
 
 import hashlib
+import os
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,9 +44,12 @@ class RunSetup:
         NaN: the log starts with a fix (the receiver was already running: no start-up)
     georef : the scene origin
     scene_path : the scene folder (None: open sky)
-    tle_path : the TLE set
+    tle_path : the ephemeris file, or TLE sets joined by ``os.pathsep`` (:func:`ephemeris_of`)
     sky_shift_s : seconds subtracted before propagating the satellites (0: the true sky)
     digest : identifies the run's epochs and positions (what a worker's sky cache is keyed by)
+    systems : RINEX letters of the systems whose satellites are compared (the columns of the
+        run's view: those the profile under test tracks and those a ``constellations``
+        candidate may add); a profile tracking fewer leaves the others' columns empty
     """
 
     key: str
@@ -59,6 +63,7 @@ class RunSetup:
     tle_path: str
     sky_shift_s: float = 0.0
     digest: str = ""
+    systems: str = "G"
 
 
 def setup_digest(t_unix_s: np.ndarray, antenna_enu_m: np.ndarray, valid: np.ndarray,
@@ -130,7 +135,7 @@ class Geometry:
 
 
 _SCENES: dict[str | None, object] = {}
-_EPHEMERIDES: dict[tuple[str, str], object] = {}
+_EPHEMERIDES: dict[tuple[str, str | None], object] = {}
 _SKIES: OrderedDict[tuple, Sky] = OrderedDict()
 
 
@@ -144,19 +149,25 @@ def _scene(path: str | None):
     return _SCENES[path]
 
 
-def _ephemeris(path: str, letters: str):
-    if (path, letters) not in _EPHEMERIDES:
+def ephemeris_of(tle: str, letters: str | None):
+    """The ephemeris of a diagnosis, loaded once per process: ``tle`` is one file (TLE set,
+    RINEX navigation file, lookup table) or several TLE sets joined by ``os.pathsep`` (one per
+    system's group); its satellites of the systems ``letters`` (RINEX letters; None: all)."""
+    if (tle, letters) not in _EPHEMERIDES:
         from virtualgps.sky import ephemeris as eph
 
-        _EPHEMERIDES[path, letters] = eph.load_ephemeris_file(Path(path), letters)
-    return _EPHEMERIDES[path, letters]
+        paths = tle.split(os.pathsep)
+        _EPHEMERIDES[tle, letters] = (
+            eph.load_ephemeris_file(Path(paths[0]), letters) if len(paths) == 1
+            else eph.load_tle_sets(paths, systems_kept=letters))
+    return _EPHEMERIDES[tle, letters]
 
 
 def receiver_for(setup: RunSetup, profile: Profile) -> Receiver:
     """The receiver of a run (scene and ephemeris loaded once per process; the ephemeris's
     satellites of the systems the profile tracks)."""
     scene = _scene(setup.scene_path)  # (its own georeference is the setup's)
-    return Receiver(profile, _ephemeris(setup.tle_path, profile.constellations.letters()),
+    return Receiver(profile, ephemeris_of(setup.tle_path, profile.constellations.letters()),
                     scene, setup.georef, setup.sky_shift_s)
 
 
@@ -166,7 +177,7 @@ def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
     # (georef: the antenna's geodetic position, hence every direction, follows the conversion)
     return (setup.digest or id(setup), profile.georef, repr(profile.sky),
             repr(profile.foliage), repr(profile.sky_mask), repr(profile.nlos), mp.enabled,
-            mp.max_dist_m)
+            mp.max_dist_m, profile.constellations.letters())
 
 
 def _antenna(setup: RunSetup) -> np.ndarray:
@@ -211,6 +222,7 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
     ant = _antenna(setup)
     vel = np.where(setup.valid[:, None], setup.vel_enu_mps, 0.0)
     n_sat = len(rx.ephemeris.prn)
+    cols = _view_columns(setup, rx)
     out: dict[str, list[np.ndarray]] = {k: [] for k in Ensemble.__dataclass_fields__}
     for seed in job.seeds:
         rng = np.random.default_rng(seed)
@@ -227,13 +239,30 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
         out["quality"].append(fixes.quality)
         out["hdop"].append(fixes.hdop.astype(np.float32))
         out["speed_mps"].append(fixes.speed_mps.astype(np.float32))
-        out["used"].append(fixes.used)
-        cn0 = np.where(fixes.in_view, fixes.cn0_dbhz, np.nan)
-        out["cn0_dbhz"].append(cn0.astype(np.float32))
+        cn0 = np.where(fixes.in_view, fixes.cn0_dbhz, np.nan).astype(np.float32)
+        used = fixes.used
+        if cols is not None:  # (into the view's columns: systems not tracked stay empty)
+            used = np.zeros((used.shape[0], cols[1]), bool)
+            used[:, cols[0]] = fixes.used
+            cn0 = np.full(used.shape, np.nan, np.float32)
+            cn0[:, cols[0]] = np.where(fixes.in_view, fixes.cn0_dbhz, np.nan)
+        out["used"].append(used)
+        out["cn0_dbhz"].append(cn0)
     return Ensemble(
         seeds=np.concatenate(out["seeds"]),
         **{k: np.stack(v) for k, v in out.items() if k != "seeds"},
     )
+
+
+def _view_columns(setup: RunSetup, rx: Receiver) -> tuple[np.ndarray, int] | None:
+    """Where the receiver's satellites sit among the view's (``setup.systems``), and how many
+    the view has; None when they are the same."""
+    letters = rx.profile.constellations.letters()
+    if letters == setup.systems:
+        return None
+    view = [int(p) for p in ephemeris_of(setup.tle_path, setup.systems).prn]
+    at = {p: k for k, p in enumerate(view)}
+    return np.array([at[int(p)] for p in rx.ephemeris.prn], dtype=np.int64), len(view)
 
 
 def geometry_job(setup: RunSetup) -> Geometry:
@@ -242,10 +271,19 @@ def geometry_job(setup: RunSetup) -> Geometry:
     A bare receiver (no effects; foliage neither blocks nor attenuates) gives the geometry, so
     it is the same whatever profile is under test.
     """
-    from virtualgps.receiver.profiles import FoliageParams, NlosParams, SkyParams
+    from virtualgps.receiver.profiles import (
+        ConstellationsParams,
+        FoliageParams,
+        NlosParams,
+        SkyParams,
+    )
+    from virtualgps.sky import systems as sy
 
     prof = Profile(name="geometry", sky=SkyParams(elevation_mask_deg=0.0, foliage="ignore"),
-                   foliage=FoliageParams(enabled=False), nlos=NlosParams(enabled=False))
+                   foliage=FoliageParams(enabled=False), nlos=NlosParams(enabled=False),
+                   constellations=ConstellationsParams(
+                       enabled=True, systems=tuple(sy.system_named(x).name
+                                                   for x in setup.systems)))
     rx = receiver_for(setup, prof)
     sky = compute_sky(rx, setup.t_unix_s, _antenna(setup))
     return Geometry(

@@ -232,6 +232,22 @@ def _cause_rows(report: dict) -> list[dict]:
     return rows
 
 
+def _tracking_section(report: dict) -> list[str]:
+    """Per-satellite tracking disagreement on held-out units, before and after the effects,
+    in all and per satellite system (where the runs hold several)."""
+    tr = report.get("tracking_disagreement") or {}
+    if not math.isfinite(tr.get("baseline", math.nan)):
+        return []
+    rows = [{"satellites": "all", "before": tr["baseline"], "after": tr.get("final")}]
+    rows += [{"satellites": name, "before": v["baseline"], "after": v["final"]}
+             for name, v in tr.get("by_system", {}).items()]
+    return ["<h2>Which satellites are tracked</h2>",
+            "<p>Per satellite, the held-out epochs the real receiver and the simulation track "
+            "differently, as a share of the compared satellite-epochs (0: the same satellites "
+            "tracked at the same times).</p>",
+            _table(rows, ["satellites", "before", "after"])]
+
+
 def _effect_rows(report: dict) -> list[dict]:
     rows = []
     for e in report.get("effects", []):
@@ -304,6 +320,7 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
         "<h2>Effects, ranked by held-out gap</h2>",
         _table(_effect_rows(report), ["effect", "added", "params", "held-out gap before",
                                       "after", "chosen in outer groups", "notes"]),
+        *_tracking_section(report),
         "<h2>Located gaps, by metric</h2>",
         f"<p>A row is a located gap when the real value leaves the band the profile's "
         f"{band.get('seeds', '')} seeds give it: a prediction interval for one more draw "

@@ -99,6 +99,7 @@ def prepare_runs(
     sky_shift: Callable[[float], float],
     jobs: int | None = None,
     dask: str | None = None,
+    systems: str | None = None,
 ) -> list[Run]:
     """Align each real run with the simulator: its setup (truth in a scene frame, power-on),
     the sky geometry along it, and the real log over the simulator's satellites.
@@ -111,6 +112,7 @@ def prepare_runs(
         satellites are compared)
     sky_shift : run start (UTC s) -> the sky-time shift to use (0: the true sky)
     jobs, dask : where the geometry jobs run (:func:`virtualgps.gap.jobs.map_jobs`)
+    systems : RINEX letters of the systems compared (default: those the profile tracks)
 
     Returns
     -------
@@ -118,6 +120,7 @@ def prepare_runs(
     """
     from virtualgps.gap.ingest import truth_positions
 
+    systems = systems or profile.constellations.letters()
     setups, pre = [], []
     for run in runs:
         ep = run.epochs
@@ -159,7 +162,8 @@ def prepare_runs(
             key=run.name, t_unix_s=t_sim, antenna_enu_m=ant, vel_enu_mps=vel, valid=valid,
             power_on_unix_s=float(t[0]) if started else math.nan, georef=georef,
             scene_path=where_scene, tle_path=tle_path, sky_shift_s=shift,
-            digest=setup_digest(t_sim, ant, valid, georef, where_scene, tle_path, shift)))
+            digest=setup_digest(t_sim, ant, valid, georef, where_scene, tle_path, shift,
+                                systems), systems=systems))
         pre.append((run, lat, lon, alt))
     geoms: list[Geometry] = map_jobs(geometry_job, setups, jobs=jobs, dask_address=dask)
     out = []

@@ -44,6 +44,7 @@ from virtualgps.gap import effects as fx
 from virtualgps.gap.design import folds as make_folds
 from virtualgps.gap.simulator import FIT, HELD, Simulator
 from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, pooled_tracking_disagreement
+from virtualgps.sky import systems
 
 FLAT_MIN = 0.02  # gap differences below this: the data cannot tell two points apart
 MIN_GAIN_ABS = 0.05  # an effect is added when it lowers the held-out gap by more than this
@@ -461,13 +462,21 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
         fold_tables = sel.fold_tables
         yield [(t, HELD, f) for t, f in zip([base] * n_f + fold_tables,
                                                          folds + folds, strict=True)]
-        before = pooled_tracking_disagreement(
-            [c for f in folds for c in sim.prn_counts(base, HELD, f)])
-        after = pooled_tracking_disagreement(
-            [c for f, t in zip(folds, fold_tables, strict=True)
-             for c in sim.prn_counts(t, HELD, f)])
+        counts_before = [c for f in folds for c in sim.prn_counts(base, HELD, f)]
+        counts_after = [c for f, t in zip(folds, fold_tables, strict=True)
+                        for c in sim.prn_counts(t, HELD, f)]
+        before = pooled_tracking_disagreement(counts_before)
+        after = pooled_tracking_disagreement(counts_after)
         sel.tracking = {"baseline": before, "final": after,
                         "shrink": 1.0 - after / before if before > 0 else math.nan}
+        # per satellite system (the runs share their satellite columns)
+        letters = systems.letters(sim.runs[0].view.prn)
+        if len(set(letters.tolist()) - {"?"}) > 1:
+            sel.tracking["by_system"] = {
+                systems.system_named(x).name: {
+                    "baseline": pooled_tracking_disagreement(counts_before, letters == x),
+                    "final": pooled_tracking_disagreement(counts_after, letters == x)}
+                for x in dict.fromkeys(letters.tolist()) if x != "?"}
     return sel
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -23,6 +24,7 @@ from virtualgps.gap import effects as fx
 from virtualgps.gap import select as sel
 from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
+from virtualgps.gap.ensemble import ephemeris_of
 from virtualgps.gap.jobs import modelling, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
@@ -48,15 +50,17 @@ class GapInputs:
     """What a diagnosis is given.
 
     real : the real NMEA logs, one per run; truth : their truth specs, same order
-    scene : scene folder/``scene.toml`` or None (open sky); tle : TLE file (None: the scene's
-    set, else the newest bundled); profile : the profile under test (name or path)
+    scene : scene folder/``scene.toml`` or None (open sky); tle : the ephemeris file, or a
+    tuple of TLE sets (one per system's group); None: for GPS and each other system the
+    profile tracks or the logs list, the set nearest the first run's start (the scene's, the
+    bundled and the fetched ones); profile : the profile under test (name or path)
     names : run names (default: the file stems, made unique)
     """
 
     real: tuple[str, ...]
     truth: tuple[str, ...]
     scene: str | None
-    tle: str | None
+    tle: str | tuple[str, ...] | None
     profile: str
     names: tuple[str, ...] | None = None
 
@@ -108,17 +112,49 @@ def load_inputs(inp: GapInputs):
         from virtualgps.sky.scene import load_scene
 
         scene = load_scene(spath)
-    if inp.tle is not None and not Path(inp.tle).exists():
-        raise ConfigError(f"TLE file {inp.tle} not found (give --tle PATH)")
-    scene_tle = getattr(scene, "tle_path", None) if scene is not None else None
-    # the same rule as run and replay: the set nearest the first run's start
-    tle, line = choose_tle_set(inp.tle, Path(scene_tle) if scene_tle else None,
-                               float(runs[0].epochs.t_unix_s[0]))
-    log.info("%s", line)
+    given = (inp.tle,) if isinstance(inp.tle, str) else tuple(inp.tle or ())
+    for p in given:
+        if not Path(p).exists():
+            raise ConfigError(f"TLE file {p} not found (give --tle PATH)")
     table, source = load_profile_dict(inp.profile)
-    build_profile(table, source)  # validates
+    profile = build_profile(table, source)  # validates
+    scene_tle = getattr(scene, "tle_path", None) if scene is not None else None
+    t0 = float(runs[0].epochs.t_unix_s[0])
+    if given:
+        tles = list(given)
+        log.info("ephemeris: --tle %s", ", ".join(tles))
+    else:
+        # the same rule as run and replay: per system, the set nearest the first run's start
+        tle, line = choose_tle_set(None, Path(scene_tle) if scene_tle else None, t0)
+        log.info("%s", line)
+        tles = [str(tle)]
+        wanted = set(profile.constellations.letters()) | set(logged_systems(runs))
+        for letter in sorted(wanted - {"G"}):
+            group = systems.GROUPS.get(letter)
+            try:
+                if group is None:
+                    raise ConfigError(f"no {systems.system_named(letter).name} TLE sets are "
+                                      "bundled")
+                path, line = choose_tle_set(None, None, t0, group)
+            except ConfigError as exc:
+                log.info("ephemeris: %s satellites left out (%s; give --tle with a set of "
+                         "them)", systems.system_named(letter).name, exc)
+                continue
+            log.info("%s", line)
+            tles.append(str(path))
     scene_dir = str(spath.parent if spath.is_file() else spath) if spath is not None else None
-    return runs, scene, scene_dir, str(tle), table, source
+    return runs, scene, scene_dir, os.pathsep.join(tles), table, source
+
+
+def logged_systems(runs: Sequence[Any]) -> str:
+    """RINEX letters of the satellite systems the real logs list (GSV or GSA), GPS first; SBAS
+    left out (a receiver's corrections, not a system ranged on)."""
+    seen: set[str] = set()
+    for r in runs:
+        ep = r.epochs
+        listed = (ep.in_view | ep.used).any(axis=0)
+        seen |= set(systems.letters(ep.prn[listed]).tolist())
+    return "".join(x for x in "GRECJ" if x in seen)
 
 
 def diagnose(
@@ -138,7 +174,7 @@ def diagnose(
     say = progress or (lambda s: None)
     runs_in, scene, scene_dir, tle, table, source = load_inputs(inp)
     profile = build_profile(table, source)
-    ephem = _ephemeris(tle, profile.constellations.letters())
+    ephem = ephemeris_of(tle, profile.constellations.letters())
 
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
@@ -149,10 +185,18 @@ def diagnose(
             if note := coverage_note(ephem, t_at - shift(float(t[0]))):
                 raise ConfigError(f"{r.name}: {note} (give --tle the navigation file of the "
                                   "log's day)")
-    say(f"{len(runs_in)} run(s) read; ephemeris {Path(tle).name}; simulating along their truth")
+    names = ", ".join(Path(p).name for p in tle.split(os.pathsep))
+    say(f"{len(runs_in)} run(s) read; ephemeris {names}; simulating along their truth")
     notes = {r.name: n for r in runs_in
              if (n := sky_note(ephem.epoch_center_unix_s, float(r.epochs.t_unix_s[0])))}
-    runs = prepare_runs(runs_in, scene, scene_dir, tle, profile, shift, opts.jobs, opts.dask)
+    # the systems compared: the profile's, and those the logs list that the ephemeris holds
+    # (a constellations candidate may add them)
+    held = set(systems.letters(ephemeris_of(tle, None).prn).tolist())
+    logged = logged_systems(runs_in)
+    own = profile.constellations.letters()
+    compared = "".join(x for x in "GRECJ" if x in own or (x in logged and x in held))
+    runs = prepare_runs(runs_in, scene, scene_dir, tle, profile, shift, opts.jobs, opts.dask,
+                        compared)
     has_mesh = any(r.setup.scene_path is not None for r in runs) and bool(
         getattr(scene, "has_mesh", False))
     has_gsv = any(r.view.assess["gsv"] and r.view.assess["cn0"] for r in runs)
@@ -204,7 +248,8 @@ def diagnose(
         causes.insert(0, georef)
     choice = None
     if design.claims:
-        choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say)
+        choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say,
+                                   systems=(logged, "".join(sorted(held))))
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
     final_ens = (ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
@@ -282,7 +327,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
                   "epochs": int(r.view.t_unix_s.size), **r.info,
                   **({"sky_warning": notes[ri.name]} if ri.name in notes else {})}
                  for r, ri in zip(runs, runs_in, strict=True)],
-        "ephemeris": str(tle),
+        "ephemeris": str(tle) if os.pathsep not in tle else tle.split(os.pathsep),
         "profile": profile.name,
         "profile_source": source,
         "seeds": opts.seeds,
@@ -368,12 +413,6 @@ def located_groups(where: list[dict]) -> list[dict]:
                                                       "sim_median", "z")}})
     out.sort(key=lambda g: -abs(g["worst"]["z"]) if math.isfinite(g["worst"]["z"]) else 0.0)
     return out
-
-
-def _ephemeris(path: str, letters: str):
-    """The ephemeris at ``path`` (TLE set, RINEX navigation file or lookup table), its
-    satellites of the systems ``letters`` (RINEX letters)."""
-    return eph.load_ephemeris_file(Path(path), letters)
 
 
 def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: str,

@@ -351,11 +351,15 @@ def tracking_means(fixed: np.ndarray, per_seed: np.ndarray) -> np.ndarray:
     return np.vstack([fixed[:2], mean[:1], fixed[2:], mean[1:]])
 
 
-def pooled_tracking_disagreement(counts: list[np.ndarray]) -> float:
+def pooled_tracking_disagreement(counts: list[np.ndarray], cols: np.ndarray | None = None
+                                 ) -> float:
     """Per-PRN tracking disagreement: sum over PRNs of |real - simulated tracked epochs| over
-    the compared satellite-epochs, pooled over units ((3, k) arrays of :func:`prn_tracking`).
-    NaN without any compared satellite-epoch."""
+    the compared satellite-epochs, pooled over units ((3, k) arrays of :func:`prn_tracking`;
+    ``cols``: (k,) bool, only those satellites, e.g. one system's). NaN without any compared
+    satellite-epoch."""
     c = np.sum(counts, axis=0)
+    if cols is not None:
+        c = c[:, cols]
     return float(np.abs(c[1] - c[2]).sum() / c[0].sum()) if c[0].sum() > 0 else float("nan")
 
 

@@ -21,6 +21,26 @@ import numpy as np
 
 from virtualgps.device.nmea.sentence import MPS_TO_KNOTS, UNIX_EPOCH_ORDINAL, parse_sentence
 from virtualgps.exceptions import InputFileError
+from virtualgps.sky import systems
+
+# NMEA satellite IDs -> our satellite numbers (virtualgps.sky.systems), by the system a talker
+# (GSV, and GSA but GN) or NMEA 4.11's system ID (a GN GSA's last field) names: NMEA 4.11 gives
+# Galileo 1-36 under GA, BeiDou 1-63 under GB (BD in 4.10), QZSS 1-10 under GQ; GPS and
+# GLONASS IDs (1-32, SBAS 33-64, GLONASS 65-96) stand as they are under any talker, as receivers
+# before 4.10 wrote every system under GP or GN.
+_TALKER_SYSTEM = {"GA": systems.GALILEO, "GB": systems.BEIDOU, "BD": systems.BEIDOU,
+                  "GQ": systems.QZSS}
+_NMEA_ID_SYSTEM = {s.nmea_id: s for s in (systems.GALILEO, systems.BEIDOU, systems.QZSS)}
+
+
+def _sat_number(system: systems.System | None, ident: int) -> int:
+    """Our number of satellite ``ident`` as a talker of ``system`` lists it (None: GPS's
+    numbering, SBAS 33-64 included)."""
+    if system is None:
+        return ident + systems.SBAS.nmea_offset if 33 <= ident <= 64 else ident
+    if system is systems.QZSS and ident > 10:  # (QZSS by its PRN 193-202, as before 4.11)
+        return ident
+    return ident + system.nmea_offset
 
 # The sentences that carry the time of day, by the index of their time field. An epoch of a log
 # is a run of sentences with one time: GSA and GSV carry none and belong to the epoch of the
@@ -50,7 +70,9 @@ class NmeaEpochs:
     sats_used_gsa : (n_t,) int, PRNs listed in the epoch's GSA sentences; -1 without GSA
     sats_in_view : (n_t,) int, GSV's "satellites in view" field; -1 without GSV
     gsv_complete : (n_t,) bool, every GSV message 1..N of the epoch arrived (valid checksums)
-    prn : (n_sat,) int, the satellites' PRNs (columns of the per-satellite arrays), ascending
+    prn : (n_sat,) int, the satellites' numbers (columns of the per-satellite arrays),
+        ascending, as :mod:`virtualgps.sky.systems` numbers them: NMEA 4.11 IDs mapped by
+        talker or system ID (GAGSV 11 is Galileo E11, 311; GPGSV 36 is SBAS PRN 123)
     el_deg, az_deg : (n_t, n_sat) float64, GSV elevation and azimuth, degrees; NaN if not listed
         or empty (MTK lists satellites without almanac as ``34,,,``)
     cn0_dbhz : (n_t, n_sat) float64, GSV SNR (C/N0), dB-Hz; NaN when not tracked (empty field)
@@ -275,7 +297,9 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
             elif cur is None:
                 continue
             elif kind == "GSA" and len(f) >= 17:
-                prns = {int(p) for p in f[2:14] if p}
+                sys_gsa = (_NMEA_ID_SYSTEM.get(int(f[17], 16)) if len(f) > 17 and f[17]
+                           else _TALKER_SYSTEM.get(addr[:2]))
+                prns = {_sat_number(sys_gsa, int(p)) for p in f[2:14] if p}
                 cur.gsa_prns = prns if cur.gsa_prns is None else cur.gsa_prns | prns
                 if cur.mode == 0:
                     cur.mode = int(f[1]) if f[1] else 0
@@ -286,9 +310,12 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
                     cur.n_view = n_view if cur.gsv_total == 0 else cur.n_view + n_view
                     cur.gsv_total += total
                 cur.gsv_seen.add((addr, num))
+                sys_gsv = _TALKER_SYSTEM.get(addr[:2])
                 for j in range(3, len(f) - 3, 4):
                     if f[j]:
-                        cur.sats[int(f[j])] = tuple(_opt_float(x) for x in f[j + 1 : j + 4])
+                        # (a second signal of a satellite, e.g. L5 after L1: the first counts)
+                        cur.sats.setdefault(_sat_number(sys_gsv, int(f[j])),
+                                            tuple(_opt_float(x) for x in f[j + 1 : j + 4]))
         except (ValueError, IndexError):
             n_bad += 1
     return epochs, n_bad
