@@ -205,3 +205,120 @@ def test_rinex3_navigation_file_gives_the_same_orbits(shared_data, tmp_path):
     np.testing.assert_array_equal(a.prn, b.prn)
     t = timegm((2020, 5, 14, 22, 0, 0)) + np.arange(0.0, 2700.0, 300.0)
     np.testing.assert_allclose(b.sat_ecef_m(t), a.sat_ecef_m(t), atol=1e-6)
+
+
+# --- RINEX 3 mixed navigation files: Galileo, BeiDou, GLONASS (issue 23) ----------------------
+
+
+def _rinex3(records: list[tuple[str, tuple, list, list]]) -> str:
+    """A RINEX 3.04 mixed navigation file of (sv, (y, m, d, h, mi, s), clock 3, orbit rows)."""
+    def d(x: float) -> str:
+        return f"{x:.12E}".rjust(19)
+
+    out = ["     3.04           N: GNSS NAV DATA    M: MIXED            RINEX VERSION / TYPE",
+           "virtualgps tests".ljust(60) + "PGM / RUN BY / DATE", " " * 60 + "END OF HEADER"]
+    for sv, (y, mo, dd, h, mi, s), clock, rows in records:
+        out.append(f"{sv} {y:04d} {mo:02d} {dd:02d} {h:02d} {mi:02d} {s:02d}"
+                   + "".join(d(v) for v in clock))
+        out += ["    " + "".join(d(v) for v in row) for row in rows]
+    return "\n".join(out) + "\n"
+
+
+# A GPS record's elements (realistic magnitudes), toe 22:00 GPS time on Monday 2020-05-18
+# (week 2106)
+KEP = {"Crs": 20.0, "DeltaN": 4.5e-9, "M0": 0.5, "Cuc": 1e-6, "e": 0.01, "Cus": 8e-6,
+       "sqrtA": 5153.7, "Toe": 86400.0 + 79200.0, "Cic": 1e-7, "Omega0": 1.0, "Cis": -1e-7,
+       "Io": 0.95, "Crc": 200.0, "omega": 0.3, "OmegaDot": -8e-9, "IDOT": 1e-10}
+
+
+def _kepler_rows(k: dict, week: float, *, galileo: bool = False, beidou: bool = False) -> list:
+    rows = [[1.0, k["Crs"], k["DeltaN"], k["M0"]], [k["Cuc"], k["e"], k["Cus"], k["sqrtA"]],
+            [k["Toe"], k["Cic"], k["Omega0"], k["Cis"]],
+            [k["Io"], k["Crc"], k["omega"], k["OmegaDot"]]]
+    if galileo:
+        rows += [[k["IDOT"], 517.0, week, 0.0], [3.12, 0.0, 0.0, 0.0], [k["Toe"], 0.0, 0.0, 0.0]]
+    elif beidou:
+        rows += [[k["IDOT"], 0.0, week, 0.0], [2.0, 0.0, 0.0, 0.0], [k["Toe"], 0.0, 0.0, 0.0]]
+    else:
+        rows += [[k["IDOT"], 1.0, week, 0.0], [2.0, 0.0, 0.0, 1.0], [k["Toe"], 4.0, 0.0, 0.0]]
+    return rows
+
+
+def test_galileo_and_beidou_records_run_on_their_own_time_scales(tmp_path):
+    # The same orbit broadcast by GPS, by Galileo (GST = GPS time, its week GPS's in RINEX 3)
+    # and by BeiDou (BDT = GPS time - 14 s, BDT week = GPS week - 1356): the same positions
+    # but for the systems' constants (mu, Earth rotation: metres over an hour). A wrong week
+    # or a missing 14 s would move them by tens of kilometres.
+    # (the node's longitude at toe, Omega0 - omega_e toe, is the orbit's: BeiDou's Omega0
+    # refers to its own week's start and Earth rotation rate)
+    bdt = dict(KEP, Toe=KEP["Toe"] - 14.0,
+               Omega0=KEP["Omega0"] - 7.2921151467e-5 * KEP["Toe"] + 7.292115e-5 * (
+                   KEP["Toe"] - 14.0))
+    path = tmp_path / "mixed.rnx"
+    path.write_text(_rinex3([
+        ("G05", (2020, 5, 18, 22, 0, 0), [0.0, 0.0, 0.0], _kepler_rows(KEP, 2106)),
+        ("E05", (2020, 5, 18, 22, 0, 0), [0.0, 0.0, 0.0], _kepler_rows(KEP, 2106,
+                                                                        galileo=True)),
+        ("C25", (2020, 5, 18, 21, 59, 46), [0.0, 0.0, 0.0], _kepler_rows(bdt, 2106 - 1356,
+                                                                          beidou=True)),
+    ]))
+    eph = load_ephemeris_file(path, None)
+    assert eph.prn.tolist() == [5, 305, 425]
+    t = timegm((2020, 5, 18, 22, 0, 0)) - 18.0 + np.arange(-3600.0, 3601.0, 600.0)  # (UTC)
+    pos = eph.sat_ecef_m(t)
+    assert np.isfinite(pos).all()
+    assert np.linalg.norm(pos[:, 1] - pos[:, 0], axis=-1).max() < 5.0
+    assert np.linalg.norm(pos[:, 2] - pos[:, 0], axis=-1).max() < 5.0
+    # only the systems asked for
+    assert load_ephemeris_file(path, "G").prn.tolist() == [5]
+
+
+def test_a_beidou_geostationary_satellite_stays_over_its_longitude(tmp_path):
+    # BDS-SIS-ICD-B1I: a GEO's elements are broadcast in a frame turned by 5 degrees about x
+    # (inclination 5 degrees there, its node opposite the x axis); turned back, a circular
+    # orbit of the Earth's own rate stays over one point of the equator. (Taking the node
+    # inertial before the turn, or turning the wrong way, tilts it by 5-10 degrees.)
+    mu, we = 3.986004418e14, 7.292115e-5
+    toe = 86400.0 + 79186.0
+    geo = dict(KEP, e=0.0, DeltaN=0.0, Crs=0.0, Crc=0.0, Cus=0.0, Cuc=0.0, Cis=0.0, Cic=0.0,
+               IDOT=0.0, OmegaDot=0.0, omega=0.0, sqrtA=(mu / we**2) ** (1 / 6), Toe=toe,
+               Io=np.radians(5.0), Omega0=we * toe + np.pi, M0=1.0)
+    path = tmp_path / "geo.rnx"
+    path.write_text(_rinex3([("C03", (2020, 5, 18, 21, 59, 46), [0.0, 0.0, 0.0],
+                              _kepler_rows(geo, 2106 - 1356, beidou=True))]))
+    eph = load_ephemeris_file(path, None)
+    t = timegm((2020, 5, 18, 22, 0, 0)) + np.arange(-7200.0, 7201.0, 900.0)
+    p = eph.sat_ecef_m(t)[:, 0]
+    lat = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    lon = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    assert np.abs(lat).max() < 0.01 and np.ptp(lon) < 0.01
+    assert np.linalg.norm(p, axis=-1) == pytest.approx((mu / we**2) ** (1 / 3), rel=1e-9)
+
+
+def test_glonass_state_vectors_integrate_along_the_tle_orbit(tmp_path):
+    # A GLONASS record made of SGP4's state of a real GLONASS satellite at 12:00 UTC; the
+    # PZ-90 integration (J2, Earth rotation) must follow SGP4's orbit over the +-15 min a
+    # record serves: lunisolar terms (not in the record here) and SGP4's higher harmonics
+    # make about 2 m there (measured, 2026-11-27); a wrong sign or frame makes kilometres.
+    from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
+
+    glo = load_tle(BUNDLED_EPHEMERIS_DIR / "glo-ops-2017-03-28.tle")
+    t0 = float(timegm((2017, 3, 28, 12, 0, 0)))
+    # (the velocity as the derivative of SGP4's ECEF positions, +-0.5 s)
+    pos = glo.sat_ecef_m(np.array([t0 - 0.5, t0, t0 + 0.5]))
+    k = int(np.flatnonzero(np.isfinite(pos[1, :, 0]) & (glo.prn >= 65))[0])
+    slot = int(glo.prn[k]) - 64
+    x, v = pos[1, k] / 1000.0, (pos[2, k] - pos[0, k]) / 1000.0  # (RINEX: km, km/s)
+    path = tmp_path / "glo.rnx"
+    path.write_text(_rinex3([(f"R{slot:02d}", (2017, 3, 28, 12, 0, 0), [0.0, 0.0, 43200.0],
+                              [[x[0], v[0], 0.0, 0.0], [x[1], v[1], 0.0, 1.0],
+                               [x[2], v[2], 0.0, 0.0]])]))
+    eph = load_ephemeris_file(path, None)
+    assert eph.prn.tolist() == [64 + slot]
+    t = t0 + np.array([-900.0, -300.0, 0.0, 300.0, 900.0])
+    ours = eph.sat_ecef_m(t)[:, 0]
+    sgp4 = glo.sat_ecef_m(t)[:, k]
+    err = np.linalg.norm(ours - sgp4, axis=-1)
+    assert err[2] < 0.01 and err.max() < 5.0, err
+    # beyond half an hour a record no longer serves
+    assert np.isnan(eph.sat_ecef_m(np.array([t0 + 2400.0]))).all()

@@ -742,8 +742,9 @@ def load_ephemeris_file(path: str | Path, systems_kept: str | None = "G"):
     ----------
     path : the file
     systems_kept : RINEX letters of the systems a TLE set keeps (default ``"G"``: the receivers
-        track GPS; None: every system, as ``sky`` lists them); lookup tables and RINEX files
-        hold GPS only
+        track GPS; None: every system, as ``sky`` lists them; the same for a RINEX
+        navigation file's GPS, Galileo, BeiDou and GLONASS records); lookup tables hold GPS
+        only
 
     Returns
     -------
@@ -755,7 +756,7 @@ def load_ephemeris_file(path: str | Path, systems_kept: str | None = "G"):
     if is_lookup_table(path):
         return read_lookup_table(path)
     if broadcast.is_rinex_nav(path):
-        return broadcast.read_rinex_nav(path)
+        return broadcast.read_rinex_nav(path, systems_kept)
     return load_tle(path, systems_kept=systems_kept)
 
 
