@@ -254,3 +254,29 @@ def test_gpsd_reports_each_systems_satellites_with_its_gnssid(tmp_path):
     # (gpsd 3.22 marks GPS and GLONASS satellites used from their GSA, not Galileo's: it
     # lists them, used none, though the GSA of system ID 3 names them; docs/device.md)
     assert any(s["used"] for s in by[0]) and any(s["used"] for s in by[6])
+
+
+def test_the_phone_base_profile_writes_as_the_magdeburg_phone_does(tmp_path):
+    from pathlib import Path
+
+    from test_cli import write_walk
+
+    from virtualgps.cli import main
+    from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
+
+    base = Path(__file__).resolve().parents[1] / "tools" / "phone-base.toml"
+    walk = write_walk(tmp_path / "walk.jsonl", n=30, dt_s=1.0)
+    out = tmp_path / "phone.nmea"
+    sets = [f"--tle={BUNDLED_EPHEMERIS_DIR / f'{g}-2017-03-28.tle'}"
+            for g in ("gps-ops", "glo-ops")]
+    assert main(["replay", str(walk), "--out", str(out), "--profile", str(base),
+                 "--scene", "none", "--origin", "52.14,11.64,100", *sets]) == 0
+    lines = out.read_bytes().splitlines(keepends=True)
+    # the Magdeburg phone's digits: hhmmss.s, ddmm.mmmmmm, one decimal of HDOP and altitude
+    # (its log: $GPGGA,125212.0,5208.411269,N,01138.470760,E,1,09,0.9,60.0,M,45.0,M,,)
+    fixed = [ln.split(b",") for ln in lines
+             if ln.startswith(b"$GPGGA") and ln.split(b",")[6] != b"0"]
+    assert fixed and all(len(f[1]) == 8 and len(f[2].split(b".")[1]) == 6
+                         and len(f[8].split(b".")[1]) == 1 for f in fixed)
+    assert any(ln.startswith(b"$GLGSV") for ln in lines)
+    assert all(parse_both(ln) for ln in lines)
