@@ -260,7 +260,7 @@ def position_errors(
     ``dop_error``: per-satellite range errors with the UERE sigma of their elevation (white, or
     Gauss-Markov with ``correlated_error`` in the range domain plus white receiver noise),
     solved by weighted least squares over the used satellites: 3D with >= 4, 2D (height held)
-    with 3 (one more for each further system's clock, ``clocks``); ``nlos`` adds the reflected
+    with 3 (one more for each further system's clock, ``prn``); ``nlos`` adds the reflected
     path's excess, ``multipath`` a Gauss-Markov error on each satellite received directly (its
     sigma from the elevation and the distance to the nearest wall:
     :func:`virtualgps.receiver.errors.multipath_sigma_m`). ``correlated_error`` in the position
