@@ -138,6 +138,12 @@ def test_each_system_has_its_signal_in_space_error():
                                                            0.2, 0.5, 0.13, 0.53)) < 1e-12
 
 
+def test_a_per_system_table_overrides_the_defaults_system_by_system():
+    prof = _two_systems(sis_factor={"GLONASS": 1.5})
+    assert dict(prof.constellations.sis_factor) == {"GLONASS": 1.5, "Galileo": 2.3,
+                                                    "BeiDou": 2.1, "QZSS": 0.86}
+
+
 def test_each_system_has_its_signal_level():
     from virtualgps.receiver.core import tracked_cn0
     from virtualgps.receiver.state import ReceiverState

@@ -296,7 +296,8 @@ class ConstellationsParams:
     (``[nmea] version``) lists them per system.
 
     The fix solves one receiver clock per system used (the inter-system time offsets). Each
-    system keeps GPS's models but for two settings, tables by system name:
+    system keeps GPS's models but for two settings, tables by system name whose entries
+    override the defaults system by system:
 
     sis_factor : its signal-in-space range error (orbit and clock of the broadcast ephemeris)
         as a multiple of GPS's ``dop_error.sis_m``. Defaults: the global average SISREs of
@@ -495,7 +496,9 @@ def _build_table(cls: type, table: dict[str, Any], prefix: str) -> Any:
                     for v in value.values()):
                 raise SettingError(prefix, key, f"{full} must be a table of numbers by name, "
                                    f"e.g. {{GLONASS = 1.0}}, got {value!r}")
-            value = tuple(sorted((str(k), float(v)) for k, v in value.items()))
+            # (entries override the defaults system by system)
+            value = tuple(sorted({**dict(default),
+                                  **{str(k): float(v) for k, v in value.items()}}.items()))
         elif isinstance(default, tuple):  # (a list of names)
             if not isinstance(value, list) or not value or not all(
                     isinstance(v, str) for v in value):
