@@ -9,6 +9,7 @@ table, which overrides the profile's (e.g. ``[noise] max_noise_m = 8.0``).
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass, field, replace
 from importlib import resources
@@ -330,15 +331,27 @@ class ConstellationsParams:
         prn : (n_sat,) int, satellite numbers (:mod:`virtualgps.sky.systems`)
         Returns (n_sat,) float, or ``gps_value`` itself when off or every satellite is GPS's.
         """
-        table = {_sys.system_named(n).letter: float(v) for n, v in getattr(self, key)}
-        if not self.enabled or not table:
+        if not self.enabled or not getattr(self, key):
             return gps_value
         import numpy as np
 
-        letters = _sys.letters(prn)
-        if not np.isin(letters, list(table)).any():
-            return gps_value
-        return np.array([table.get(x, gps_value) for x in letters.tolist()], dtype=float)
+        # (cached per constellation: the live loop asks every epoch)
+        return _per_satellite(self, key, tuple(np.asarray(prn, dtype=np.int64).tolist()),
+                              gps_value)
+
+
+@functools.lru_cache(maxsize=32)
+def _per_satellite(cs: ConstellationsParams, key: str, prn: tuple[int, ...],
+                   gps_value: float) -> Any:
+    import numpy as np
+
+    table = {_sys.system_named(n).letter: float(v) for n, v in getattr(cs, key)}
+    letters = _sys.letters(prn)
+    if not np.isin(letters, list(table)).any():
+        return gps_value
+    out = np.array([table.get(x, gps_value) for x in letters.tolist()], dtype=float)
+    out.flags.writeable = False  # (shared by every call)
+    return out
 
 
 @dataclass(frozen=True)
