@@ -103,6 +103,45 @@ def test_score_is_near_zero_under_the_null_and_grows_with_the_gap():
     assert far[0] < far[1] < far[2] <= bands.D_CAP
 
 
+def test_a_candidate_gains_nothing_by_widening_its_spread_away_from_the_real_value():
+    """The GSDC case: the profile under test says HDOP 1.0 with little scatter, the phone
+    prints 0.38; a candidate moves the HDOP to 3.7 and widens its scatter. In its own spread
+    its distance falls; guarded by the profile under test it does not."""
+    rng = np.random.default_rng(11)
+    ref_sims = np.exp(rng.normal(np.log(1.0), 0.03, 8))
+    cand_sims = np.exp(rng.normal(np.log(3.7), 0.6, 8))
+    real = 0.38
+    ref = bands.judge("hdop_median", real, ref_sims)
+    own = bands.judge("hdop_median", real, cand_sims)
+    d_ref = bands.distance_against("hdop_median", real, ref, ref)
+    assert bands.distance(own.z) < d_ref  # the trap: widening alone looks like a gain
+    d = bands.distance_against("hdop_median", real, own, ref)
+    assert d >= d_ref and d >= bands.distance(own.z)
+
+
+def test_a_guarded_distance_keeps_the_candidates_own_spread_when_its_centre_comes_closer():
+    """A candidate that moves the centre onto the real value keeps its own (calibrated)
+    distance, however wide its spread; one with the reference's centre and a wider spread (a
+    correlated error scattering whole-unit CEPs) too; the reference itself is unchanged."""
+    rng = np.random.default_rng(12)
+    ref_sims = np.exp(rng.normal(np.log(1.0), 0.03, 8))
+    real = 0.38
+    ref = bands.judge("hdop_median", real, ref_sims)
+    closer = bands.judge("hdop_median", real, np.exp(rng.normal(np.log(0.4), 0.5, 8)))
+    assert bands.distance_against("hdop_median", real, closer, ref) == \
+        bands.distance(closer.z) < bands.distance(ref.z)
+    null, kept = [], 0
+    for _ in range(500):
+        sharp = np.exp(rng.normal(np.log(4.0), 0.05, 9))
+        wide = np.exp(rng.normal(np.log(4.0), 0.5, 9))
+        y = float(np.exp(rng.normal(np.log(4.0), 0.5)))  # the real scatter is the wide one
+        r, w = bands.judge("cep50_m", y, sharp[1:]), bands.judge("cep50_m", y, wide[1:])
+        kept += bands.distance_against("cep50_m", y, w, r) == bands.distance(w.z)
+        null.append(bands.distance_against("cep50_m", y, w, r))
+    assert kept / 500 > 0.99 and np.mean(null) < 0.2
+    assert bands.distance_against("hdop_median", real, ref, ref) == bands.distance(ref.z)
+
+
 def test_printed_step_reads_the_logs_digits():
     assert where.printed_step(np.array([1.0, 0.99, 1.23])) == pytest.approx(0.01)
     assert where.printed_step(np.array([0.9, 1.1, 2.0])) == pytest.approx(0.1)

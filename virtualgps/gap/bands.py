@@ -34,7 +34,9 @@ Score. For fitting and ranking effects each metric's disagreement is ``z``, the 
 of its two-sided predictive p-value (0 inside the floor, :data:`Z_CAP` at most), and its
 distance ``max(0, z - DEAD_ZONE_Z)``: under the null a metric's distance averages about 0.1, and
 a metric the seeds cannot tell apart from the real log adds nothing, so no effect buys a lower
-score by moving a metric within the seeds' own scatter.
+score by moving a metric within the seeds' own scatter. Nor by widening that scatter: where a
+candidate moves a metric's centre away from the real value, its distance is at least the one
+that centre has in the spread of the profile under test (:func:`distance_against`).
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ Z_CAP = 8.0  # a p-value of ~1e-15: beyond it nothing is more certain
 DEAD_ZONE_Z = 1.0  # score distance: z beyond one predictive standard deviation
 D_CAP = 5.0  # one metric's distance at most (a metric shown by the real log, by no seed)
 MIN_SEEDS = 3  # seeds with a value a statistic needs before it is judged
+GUARD_P = 0.001  # a centre that moves away by less than its noise at this level has not moved
 
 
 @dataclass(frozen=True)
@@ -122,6 +125,8 @@ class Judged:
     centre : the ensemble's centre, metric units (its mean on the judging scale, or the median
         for rank-judged metrics); floor : the practical floor used, metric units
     n : seeds with a value
+    rank : judged by rank (a seed's missing value counted as the largest)
+    sd_g : the seeds' standard deviation on the judging scale (NaN where rank-judged)
     """
 
     p: float
@@ -130,6 +135,7 @@ class Judged:
     floor: float
     n: int
     rank: bool
+    sd_g: float = math.nan
 
 
 def _z_of_p(p: float, sign: float) -> float:
@@ -138,6 +144,24 @@ def _z_of_p(p: float, sign: float) -> float:
     if p >= 1.0:
         return 0.0
     return float(sign * min(Z_CAP, -special.ndtri(max(p, 1e-300) / 2.0)))
+
+
+def _predictive(spec: MetricSpec, real: float, centre: float, sd_g: float, n: int
+                ) -> tuple[float, float, float]:
+    """The real value against one more draw of a normal ensemble of ``n`` seeds with this
+    centre (metric units) and spread (judging scale): (p, z, floor) as in :func:`judge`."""
+    floor = max(spec.floor, spec.rel_floor * abs(centre))
+    if abs(real - centre) <= floor:
+        return 1.0, 0.0, floor
+    sign = 1.0 if real > centre else -1.0
+    edge = float(_g(spec, centre + sign * floor))
+    d = abs(float(_g(spec, real)) - edge)
+    scale = sd_g * math.sqrt(1.0 + 1.0 / n)
+    if scale <= 0.0:
+        p = 0.0 if d > 0 else 1.0
+    else:
+        p = float(2.0 * special.stdtr(n - 1, -d / scale))
+    return p, _z_of_p(p, sign), floor
 
 
 def judge(metric: str, real: float, sims: Sequence[float] | np.ndarray) -> Judged:
@@ -172,18 +196,8 @@ def judge(metric: str, real: float, sims: Sequence[float] | np.ndarray) -> Judge
     g = _g(spec, fin)
     m, sd = float(np.mean(g)), float(np.std(g, ddof=1))
     centre = float(_g_inv(spec, m))
-    floor = max(spec.floor, spec.rel_floor * abs(centre))
-    if abs(real - centre) <= floor:
-        return Judged(1.0, 0.0, centre, floor, int(fin.size), False)
-    sign = 1.0 if real > centre else -1.0
-    edge = float(_g(spec, centre + sign * floor))
-    d = abs(float(_g(spec, real)) - edge)
-    scale = sd * math.sqrt(1.0 + 1.0 / fin.size)
-    if scale <= 0.0:
-        p = 0.0 if d > 0 else 1.0
-    else:
-        p = float(2.0 * special.stdtr(fin.size - 1, -d / scale))
-    return Judged(p, _z_of_p(p, sign), centre, floor, int(fin.size), False)
+    p, z, floor = _predictive(spec, real, centre, sd, int(fin.size))
+    return Judged(p, z, centre, floor, int(fin.size), False, sd)
 
 
 def band(metric: str, sims: Sequence[float] | np.ndarray, alpha: float) -> tuple[float, float]:
@@ -247,6 +261,40 @@ def distance(z: float) -> float:
     if not math.isfinite(z):
         return math.nan
     return float(min(D_CAP, max(0.0, abs(z) - DEAD_ZONE_Z)))
+
+
+def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) -> float:
+    """One metric's score distance for a candidate, guarded by the profile under test.
+
+    In its own seeds' spread (:func:`distance` of ``own.z``), unless the candidate's centre
+    lies further from the real value than the reference's (the profile under test, on the
+    judging scale, beyond the two centres' estimation noise at one-sided level
+    :data:`GUARD_P`): then it is at least
+    the distance its centre has in the reference's spread. Moving a metric away from the real
+    log while widening the seeds' spread thus never counts as a gain (on the GSDC drive
+    ``cn0_tracking`` took the simulated HDOP from 1.0 to 3.7, further from the phone's 0.38,
+    and in its own, wider spread its distance fell from 5.0 to 3.4). A centre that moves
+    towards the real value, or stays, keeps the candidate's own calibrated distance.
+
+    own, ref : :func:`judge` of the real value against the candidate's and the reference's
+        seeds (ref None, or either rank-judged: the own distance)
+    """
+    d_own = distance(own.z)
+    if (ref is None or own.rank or ref.rank or not math.isfinite(d_own)
+            or not (math.isfinite(own.sd_g) and math.isfinite(ref.sd_g))):
+        return d_own
+    spec = METRICS[metric]
+    g_real = float(_g(spec, real))
+    miss_own = abs(g_real - float(_g(spec, own.centre)))
+    miss_ref = abs(g_real - float(_g(spec, ref.centre)))
+    # "further" beyond the two centres' estimation noise: the 99.9 % point of Student's t
+    # (a candidate whose centre only seems to move by the seeds' luck keeps its own distance)
+    tol = float(special.stdtrit(min(own.n, ref.n) - 1, 1.0 - GUARD_P)) * math.sqrt(
+        own.sd_g ** 2 / own.n + ref.sd_g ** 2 / ref.n)
+    if miss_own <= miss_ref + tol:
+        return d_own
+    _, z, _ = _predictive(spec, real, own.centre, ref.sd_g, ref.n)
+    return max(d_own, distance(z))
 
 
 def band_description(n_rows: int, seeds: int, alpha_row: float) -> dict:

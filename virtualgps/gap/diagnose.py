@@ -29,7 +29,7 @@ from virtualgps.gap.ensemble import Ensemble
 from virtualgps.gap.motion import LAG_MIN_VEL_RMS_MPS
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.select import Request, Selection, drive, select
-from virtualgps.gap.simulator import OUTER, Simulator
+from virtualgps.gap.simulator import HELD, OUTER, Simulator
 from virtualgps.gap.where import (
     Obs,
     RunView,
@@ -101,7 +101,7 @@ def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
            candidates: Callable) -> Generator[Request, None, dict]:
     """One outer group: the selection on the other units, measured on the group."""
     sel = yield from select(sim, base, inner, inner, candidates, MAX_INNER)
-    yield [(sel.final_table, OUTER, held), (base, OUTER, held)]
+    yield [(sel.final_table, OUTER, held), (base, OUTER, held), (base, HELD, held)]
     return {"heldout": ", ".join(sim.units[u].label for u in held),
             "effects": [s["name"] for s in sel.steps],
             "params": {s["name"]: s["params"] for s in sel.steps},

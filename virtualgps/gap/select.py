@@ -388,7 +388,9 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
     n_f = len(folds)
     fold_tables = [base] * n_f
     table = base
-    yield [(base, HELD, units)]
+    # (the base's held-out scores of every unit read are the guard of every table's score:
+    # Simulator.set_reference)
+    yield [(base, HELD, sorted(set(units) | set(fit_units)))]
     baseline = _mean(np.array([sim.gap(base, HELD, f) for f in folds]))
     current = baseline
     cands, skipped = candidates(base)

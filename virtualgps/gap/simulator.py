@@ -33,10 +33,12 @@ from virtualgps.gap.jobs import JobQueue, map_jobs, share, shared, worker_count
 from virtualgps.gap.runs import Run, sim_obs
 from virtualgps.gap.where import (
     SCORE_METRICS,
+    Judged,
     SegmentStats,
     bin_tracking,
     errors_enu,
     gap_score,
+    judge_scored,
     merge_stats,
     prn_tracking,
     segment_stats,
@@ -49,14 +51,20 @@ MIN_JOBS_PER_WORKER = 3  # a smaller batch has its jobs' seeds split
 
 @dataclass(frozen=True)
 class UnitScore:
-    """One unit under one table and seed set: the gap, the distance per metric, and (where
-    asked) the per-PRN and per-sky-bin tracking counts (see
-    :func:`virtualgps.gap.where.prn_tracking`, :func:`virtualgps.gap.where.bin_tracking`)."""
+    """One unit under one table and seed set: each score metric's real value and judgment
+    (:func:`virtualgps.gap.where.judge_scored`) and (where asked) the per-PRN and per-sky-bin
+    tracking counts (see :func:`virtualgps.gap.where.prn_tracking`,
+    :func:`virtualgps.gap.where.bin_tracking`). Its gap is read through
+    :meth:`Simulator.gap`, beside the reference's judgments of the same unit."""
 
-    gap: float
-    parts: dict[str, float]
+    judged: dict[str, tuple[float, Judged]]
     prn: np.ndarray | None = None
     bins: np.ndarray | None = None
+
+    @property
+    def own(self) -> tuple[float, dict[str, float]]:
+        """The gap and per-metric distances in the seeds' own spread, with no reference."""
+        return gap_score(self.judged)
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,7 @@ class UnitPart:
 
 def unit_score(parts: list[UnitPart]) -> UnitScore:
     """One unit's score from its parts over seed groups (in seed order)."""
-    gap, by_metric = gap_score(merge_stats([p.stats for p in parts]))
+    judged = judge_scored(merge_stats([p.stats for p in parts]))
 
     def means(which: str) -> np.ndarray | None:
         got = [getattr(p, which) for p in parts]
@@ -80,7 +88,7 @@ def unit_score(parts: list[UnitPart]) -> UnitScore:
             return None
         return tracking_means(got[0][0], np.concatenate([g[1] for g in got], axis=-2))
 
-    return UnitScore(gap, by_metric, means("prn"), means("bins"))
+    return UnitScore(judged, means("prn"), means("bins"))
 
 
 @dataclass(frozen=True)
@@ -162,6 +170,8 @@ class Simulator:
         self.queue = JobQueue(gap_job, jobs, dask)
         # units under way: one slot per seed group, filled as the jobs come back
         self._parts: dict[tuple[str, int, int], list[UnitPart | UnitScore | None]] = {}
+        self.reference: str | None = None  # see set_reference
+        self._gaps: dict[tuple[str, int, int, str | None], tuple[float, dict[str, float]]] = {}
 
     def seeds(self, seed_set: int) -> tuple[int, ...]:
         """The seeds of a seed set (disjoint ranges)."""
@@ -251,16 +261,41 @@ class Simulator:
         key = self.key(table)
         return [self._scores[(key, seed_set, u)] for u in units]
 
+    def set_reference(self, table: dict[str, Any] | None) -> None:
+        """The profile under test, whose held-out seeds' judgments guard every table's score
+        of the same unit (:func:`virtualgps.gap.bands.distance_against`); None: each table
+        in its own seeds' spread alone. Its held-out scores must be requested before any
+        other table's gap of those units is read."""
+        self.reference = None if table is None else self.key(table)
+
+    def _unit_gap(self, key: str, seed_set: int, u: int) -> tuple[float, dict[str, float]]:
+        k = (key, seed_set, u, self.reference)
+        hit = self._gaps.get(k)
+        if hit is None:
+            score = self._scores[(key, seed_set, u)]
+            if self.reference is None:
+                hit = score.own
+            else:
+                ref = self._scores.get((self.reference, HELD, u))
+                if ref is None:
+                    raise RuntimeError(f"unit {u}: the reference's held-out scores were not "
+                                       "requested before a gap was read")
+                hit = gap_score(score.judged, ref.judged)
+            self._gaps[k] = hit
+        return hit
+
     def gap(self, table: dict[str, Any], seed_set: int, units: Sequence[int]) -> float:
         """Mean gap over some units (NaN where none is assessed)."""
-        g = [s.gap for s in self.scores(table, seed_set, units)]
+        key = self.key(table)
+        g = [self._unit_gap(key, seed_set, u)[0] for u in units]
         g = [x for x in g if np.isfinite(x)]
         return float(np.mean(g)) if g else float("nan")
 
     def parts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
               ) -> dict[str, float]:
         """Mean distance per metric over the units that assess it."""
-        per = [s.parts for s in self.scores(table, seed_set, units)]
+        key = self.key(table)
+        per = [self._unit_gap(key, seed_set, u)[1] for u in units]
         names = sorted({m for p in per for m in p})
         return {m: float(np.mean([p[m] for p in per if m in p])) for m in names}
 

@@ -246,6 +246,9 @@ def diagnose(
         if georef["applied"]:
             base = exact
         causes.insert(0, georef)
+    # every table's score is guarded by the profile under test's (a candidate that moves a
+    # metric away from the real log gains nothing by widening its seeds' spread)
+    sim.set_reference(base)
     choice = None
     if design.claims:
         choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say,

@@ -23,7 +23,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from virtualgps.gap.bands import METRICS, SCORE_METRICS, band, bh_alpha, distance, judge
+from virtualgps.gap.bands import (
+    METRICS,
+    SCORE_METRICS,
+    Judged,
+    band,
+    bh_alpha,
+    distance,
+    distance_against,
+    judge,
+)
 from virtualgps.gap.metrics import (
     INV_E,
     autocorrelation,
@@ -566,21 +575,32 @@ def segment_stats(
     return SegmentStats(real, sim, pair, fractions)
 
 
-def gap_score(stats: SegmentStats) -> tuple[float, dict[str, float]]:
-    """The scalar gap of a unit of data: the mean distance, in units of the seeds' spread, over
-    the score metrics it supports (:func:`virtualgps.gap.bands.distance`).
+def judge_scored(stats: SegmentStats) -> dict[str, tuple[float, Judged]]:
+    """Each score metric a unit of data supports: its real value and how the seeds judge it
+    (:func:`virtualgps.gap.bands.judge`)."""
+    return {m: (stats.real[m], judge(m, stats.real[m], stats.sim[m]))
+            for m in SCORE_METRICS if m in stats.real}
 
+
+def gap_score(judged: dict[str, tuple[float, Judged]],
+              ref: dict[str, tuple[float, Judged]] | None = None
+              ) -> tuple[float, dict[str, float]]:
+    """The scalar gap of a unit of data: the mean distance, in units of the seeds' spread, over
+    the score metrics it supports (:func:`virtualgps.gap.bands.distance_against`, guarded by
+    the reference's judgments of the same unit where given).
+
+    judged, ref : :func:`judge_scored` of a candidate's and of the profile under test's seeds
     Returns
     -------
     gap : float (NaN when no score metric is assessed)
     parts : {metric: distance}
     """
     parts = {}
-    for m in SCORE_METRICS:
-        if m in stats.real:
-            d = distance(judge(m, stats.real[m], stats.sim[m]).z)
-            if np.isfinite(d):
-                parts[m] = d
+    for m, (real, j) in judged.items():
+        r = ref.get(m) if ref is not None else None
+        d = distance_against(m, real, j, r[1] if r is not None else None)
+        if np.isfinite(d):
+            parts[m] = d
     return (float(np.mean(list(parts.values()))) if parts else float("nan")), parts
 
 
