@@ -264,6 +264,10 @@ def test_sky_lists_every_system_of_its_tle_sets_with_nmea_ids(tmp_path, capsys, 
     assert "galileo-2017-03-28.tle (a bundled set" in caplog.text
     assert main(args[:8] + ["--systems", "BeiDou"]) == 2
     assert "no beidou TLE set is at hand: give one with --tle" in capsys.readouterr().err
+    # beside another system, a system with no set at hand is left out with a warning
+    assert main(args[:8] + ["--systems", "GPS,BeiDou"]) == 0
+    assert {r["system"] for r in json.loads(capsys.readouterr().out)} == {"GPS"}
+    assert "BeiDou satellites left out (no beidou TLE set is at hand" in caplog.text
     assert main(args[:8] + ["--systems", "QZSS"]) == 2
     assert "no QZSS TLE sets are bundled" in capsys.readouterr().err
     assert main(args + ["--systems", "Glonas"]) == 2

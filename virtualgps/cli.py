@@ -311,9 +311,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         link = r.stats.link
         if link is not None and (link.commands or link.bad_checksum):
             log.info(
-                "receiver %d: MTK command link: %d commands answered, %d with a wrong checksum "
+                "receiver %d: %s command link: %d commands answered, %d with a wrong checksum "
                 "ignored; settings at exit: %s",
-                r.receiver_id, link.commands, link.bad_checksum, link.settings,
+                r.receiver_id, link.protocol, link.commands, link.bad_checksum, link.summary(),
             )
     provider = fleet.provider
     bad = getattr(provider, "bad", None)

@@ -445,6 +445,8 @@ class MtkLink:
     bad_checksum : packets ignored for a wrong checksum
     """
 
+    protocol = "MTK"  # (for people: log lines)
+
     def __init__(self, defaults: MtkSettings, firmware: str) -> None:
         self.defaults = defaults
         self.settings = defaults
@@ -452,6 +454,10 @@ class MtkLink:
         self._splitter = PacketSplitter()
         self.commands = 0
         self.bad_checksum = 0
+
+    def summary(self) -> str:
+        """The link's settings in one line (the daemon's exit log)."""
+        return str(self.settings)
 
     def startup(self) -> str:
         """The sentence written at power-on, ``$PMTK010,001*2E\\r\\n``."""

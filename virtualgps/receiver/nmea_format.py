@@ -16,7 +16,7 @@ from virtualgps.exceptions import ConfigError
 
 SENTENCE_TYPES = ("GGA", "GSA", "GSV", "RMC", "VTG", "GLL", "GST", "ZDA")
 NO_FIX_STYLES = ("mtk", "empty")
-NMEA_VERSIONS = ("2.3", "4.11")
+NMEA_VERSIONS = ("2.3", "4.10", "4.11")
 
 # GSV: NMEA 0183 v2.3 allows 1 to 9 messages of 4 satellites.
 GSV_MAX_SATS = 36
@@ -52,7 +52,9 @@ class NmeaFormat:
         phones write several systems: a GSA per system ending in its system ID, a run of GSV
         per system's talker (GP, GL, GA, GB, GQ) ending in the signal ID, satellites by their
         NMEA IDs, RMC's navigational status ``V``; ``talker`` ``GN`` where several systems are
-        tracked). 4.11 needs ``mode_letter``.
+        tracked). ``"4.10"`` writes the same bytes (u-blox M8 receiver description, NMEA
+        protocol: GSA's system ID, GSV's signal ID and RMC's navigational status all appear
+        from NMEA 4.10 on). 4.10 and 4.11 need ``mode_letter``.
     """
 
     talker: str = "GP"
@@ -138,7 +140,7 @@ class NmeaFormat:
         _check("version", self.version, self.version in NMEA_VERSIONS,
                f"one of {NMEA_VERSIONS} (a string)")
         _check("mode_letter", self.mode_letter, self.mode_letter or self.version == "2.3",
-               "true with version 4.11 (its RMC, VTG and GLL end in the mode letter)")
+               "true with version 4.10 or 4.11 (their RMC, VTG and GLL end in the mode letter)")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], section: str = "nmea") -> NmeaFormat:

@@ -22,7 +22,7 @@ from virtualgps.sky import systems as _sys
 from virtualgps.sky.skymask import SKY_MASK_MAX_CELL, SkyMaskParams
 from virtualgps.tomlfile import read_toml, toml_key_line
 
-BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal")
+BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal", "ublox-m8n", "ublox-m9n")
 DEFAULT_PROFILE = "holux-m1000"
 
 # Settings of a run (not of the receiver) that a config file may set at its top level.
@@ -355,6 +355,16 @@ def _per_satellite(cs: ConstellationsParams, key: str, prn: tuple[int, ...],
 
 
 @dataclass(frozen=True)
+class UbxParams:
+    """``ubx``: the u-blox module a ``command_link = "ubx"`` profile answers as (DESIGN 5b):
+    ``generation`` "M8" (NEO-M8N: protocol 18, UBX-CFG messages) or "M9" (NEO-M9N: protocol
+    32, also the CFG-VALSET/VALGET/VALDEL configuration keys), which fixes its MON-VER, its
+    power-on configuration and the commands it takes (:mod:`virtualgps.device.ubx`)."""
+
+    generation: str = "M8"
+
+
+@dataclass(frozen=True)
 class Profile:
     """A receiver profile: output format, rates and the error model's parameters.
 
@@ -362,7 +372,9 @@ class Profile:
     pose_timeout_s : a pose older than this gives no-fix epochs;
     georef : "wgs84" (exact) or "flat_earth" (the paper's conversion);
     nmea : the ``[nmea]`` table, read by :class:`virtualgps.receiver.nmea_format.NmeaFormat`;
-    command_link : "mtk" (answer $PMTK commands written to the device) or "none" (ignore them);
+    command_link : "mtk" (answer $PMTK commands written to the device), "ubx" (answer UBX
+        and ``$PUBX`` as a u-blox module, ``[ubx]``, and write its UBX output) or "none"
+        (ignore them);
     firmware : the body of the ``$PMTK705`` answer (release, build id, model) with ``mtk``.
     """
 
@@ -388,6 +400,7 @@ class Profile:
     foliage: FoliageParams = field(default_factory=FoliageParams)
     sky_mask: SkyMaskParams = field(default_factory=SkyMaskParams)
     constellations: ConstellationsParams = field(default_factory=ConstellationsParams)
+    ubx: UbxParams = field(default_factory=UbxParams)
     nmea: dict[str, Any] = field(default_factory=dict)
     command_link: str = "none"
     firmware: str = "AXN_1.30,0000,HOLUX M-1000 (virtualgps),"
@@ -408,7 +421,8 @@ _CHOICES = {
     ("noise", "model"): ("usarsim", "none"),
     ("cold_start", "power_on"): ("none", "hot", "warm", "cold"),
     ("correlated_error", "domain"): ("range", "position"),
-    ("", "command_link"): ("mtk", "none"),
+    ("", "command_link"): ("mtk", "ubx", "none"),
+    ("ubx", "generation"): ("M8", "M9"),
 }
 _NMEA_TEXT = frozenset(chr(c) for c in range(32, 127)) - set("$*!\\")
 _TABLES = {
@@ -427,6 +441,7 @@ _TABLES = {
     "multipath": MultipathParams,
     "foliage": FoliageParams,
     "constellations": ConstellationsParams,
+    "ubx": UbxParams,
 }
 
 

@@ -241,15 +241,27 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
         return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]
     others = [x for x in (systems_kept or "") if x != "G"]
     if not cfg.tle and others:  # e.g. sky --systems GPS,GLONASS: a set per system's group
-        paths = []
+        # A system whose set is nowhere at hand is left out with one warning (a built-in
+        # profile must run as installed: no BeiDou set is bundled); none at all is an error.
+        paths, missing = [], []
         for letter in dict.fromkeys(["G"] * ("G" in systems_kept) + others):
-            if letter not in systems.GROUPS:
-                raise ConfigError(f"no {systems.system_named(letter).name} TLE sets are "
-                                  "bundled: give one with --tle PATH")
-            path, line = choose_tle_set(None, scene_tle if letter == "G" else None,
-                                        t_start_unix_s, systems.GROUPS[letter])
+            name = systems.system_named(letter).name
+            try:
+                if letter not in systems.GROUPS:
+                    raise ConfigError(f"no {name} TLE sets are bundled: give one with --tle "
+                                      "PATH")
+                path, line = choose_tle_set(None, scene_tle if letter == "G" else None,
+                                            t_start_unix_s, systems.GROUPS[letter])
+            except ConfigError as exc:
+                missing.append((name, exc))
+                continue
             log.info("%s", line)
             paths.append(path)
+        if not paths:
+            raise missing[0][1]
+        for name, exc in missing:
+            log.warning("ephemeris: %s satellites left out (%s, or fetch the sets with "
+                        "'virtualgps ephemeris fetch')", name, exc)
         return eph.load_tle_sets(paths, systems_kept=systems_kept), paths[0]
     path, line = choose_tle_set(cfg.tle[0] if cfg.tle else None, scene_tle, t_start_unix_s)
     if not path.exists():

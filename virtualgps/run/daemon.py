@@ -24,6 +24,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from virtualgps.device import mtk, nmea
+from virtualgps.device.ubx import messages as ubx_messages
+from virtualgps.device.ubx.link import UbxLink
+from virtualgps.device.ubx.settings import default_settings as ubx_defaults
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Receiver
 from virtualgps.receiver.profiles import Profile
@@ -39,8 +42,9 @@ log = logging.getLogger(__name__)
 class DaemonStats:
     """Counters the status line and the exit summary show.
 
-    link : the MTK command link (its ``settings`` are what the client set: fix interval, baud,
-        sentence rates, SBAS, static-navigation threshold), or None without one
+    link : the command link (its ``settings`` are what the client set: with MTK fix interval,
+        baud, sentence rates, SBAS, static-navigation threshold; with u-blox baud, protocols,
+        message rates, navigation rate, GNSS, dynamic model), or None without one
     """
 
     epochs: int = 0
@@ -48,12 +52,12 @@ class DaemonStats:
     late_epochs: int = 0
     skipped_epochs: int = 0
     max_lateness_s: float = 0.0
-    link: mtk.MtkLink | None = None
+    link: mtk.MtkLink | UbxLink | None = None
 
 
-def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
-    """The profile's command link: a :class:`~virtualgps.device.mtk.MtkLink` for ``mtk``, else
-    None.
+def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | UbxLink | None:
+    """The profile's command link: a :class:`~virtualgps.device.mtk.MtkLink` for ``mtk``, a
+    :class:`~virtualgps.device.ubx.link.UbxLink` for ``ubx``, else None.
 
     Parameters
     ----------
@@ -62,9 +66,12 @@ def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
 
     Returns
     -------
-    link : MtkLink or None
+    link : MtkLink, UbxLink or None
     """
-    if getattr(profile, "command_link", "none") != "mtk":
+    kind = getattr(profile, "command_link", "none")
+    if kind == "ubx":
+        return make_ubx_link(profile)
+    if kind != "mtk":
         return None
     sbas = profile.sbas.enabled
     hold = profile.static_hold
@@ -74,6 +81,36 @@ def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | None:
         static_nav_mps=hold.threshold_mps if hold.enabled else 0.0,
     )
     return mtk.MtkLink(defaults, profile.firmware)
+
+
+def make_ubx_link(profile) -> UbxLink:
+    """A u-blox link at the profile's power-on: its generation (``[ubx]``), baud, rate, and the
+    systems it tracks enabled (SBAS where ``[sbas]`` is on).
+
+    profile : the receiver profile; returns the UbxLink
+    """
+    systems = list(profile.constellations.systems if profile.constellations.enabled
+                   else ("GPS",))
+    if profile.sbas.enabled:
+        systems.append("SBAS")
+    defaults = ubx_defaults(profile.ubx.generation, baud=profile.baud, rate_hz=profile.rate_hz,
+                            gnss=tuple(systems))
+    return UbxLink(defaults)
+
+
+def ubx_format(base: nmea.NmeaFormat, link: UbxLink, rate_hz: float) -> nmea.NmeaFormat | None:
+    """The NMEA a u-blox link writes: the profile's sentences the link has on for its port
+    (CFG-MSG class F0, CFG-PRT's NMEA output), at their rates (every n-th solution, counted
+    on the epoch grid as ``every`` does); None when no sentence is on.
+
+    base : the profile's format; link : the link; rate_hz : solutions per second
+    """
+    every = link.nmea_every() if link.nmea_enabled() else {}
+    sentences = tuple(s for s in base.sentences if s in every)
+    if not sentences:
+        return None
+    slow = tuple(sorted((s, n) for s, n in every.items() if s in sentences and n > 1))
+    return replace(base, sentences=sentences, every=slow, fix_rate_hz=rate_hz)
 
 
 def apply_link_settings(rx: Receiver, settings: mtk.MtkSettings) -> Receiver:
@@ -152,7 +189,7 @@ class LiveReceiver:
         fmt: nmea.NmeaFormat,
         clock: SimClock,
         rng: np.random.Generator,
-        link: mtk.MtkLink | None | str = "profile",
+        link: mtk.MtkLink | UbxLink | None | str = "profile",
         receiver_id: int = 0,
         antenna_offset_enu_m: np.ndarray | None = None,
         t_first_unix_s: float | None = None,
@@ -184,7 +221,11 @@ class LiveReceiver:
         # Power-on at the first epoch's time, as replay does: a run with --start-time starts
         # the same whatever its set-up took (a fleet's receiver as the same receiver alone).
         self.state = initial_state(prof, self.t_next_unix_s, rng, self.n_sat)
-        if link is not None:
+        if isinstance(link, UbxLink):
+            self.out_fmt = ubx_format(fmt, link, self.rate)
+            if boot := link.startup():
+                device.write_epoch(boot)
+        elif link is not None:
             device.write_epoch(link.startup().encode("ascii"))
 
     @property
@@ -218,6 +259,9 @@ class LiveReceiver:
         data = self.device.read_available()
         link, prof = self.link, self.prof
         if link is None or self.applied is None or not data:
+            return
+        if isinstance(link, UbxLink):
+            self._service_ubx(link, data)
             return
         for resp in link.feed(data, max(self.recent_sizes, default=0)):
             old = self.applied
@@ -254,6 +298,40 @@ class LiveReceiver:
                 self.rx = apply_link_settings(self.rx, new)
                 log.info("client set SBAS %s, static navigation %.2f m/s",
                          "on" if new.sbas_active else "off", new.static_nav_mps)
+
+    def _service_ubx(self, link: UbxLink, data: bytes) -> None:
+        """Answer a u-blox client and apply what it set: each reply is queued whole, then its
+        settings applied (a baud change after the ACK has gone out at the old baud, as the
+        module does); CFG-RST restarts the receiver; the navigation rate, the NMEA sentences
+        and SBAS follow the link's settings. The systems tracked stay the profile's (CFG-GNSS
+        is stored and answered)."""
+        for resp in link.feed(data):
+            if resp.reply:
+                self.device.write_epoch(resp.reply)
+            if resp.restart is not None:
+                self.state = restart(self.state, resp.restart, self.clock.now_unix_s(),
+                                     self.prof, self.rng, self.n_sat)
+                log.info("client commanded a %s start (%s)", resp.restart, resp.command)
+            old, new = self.applied, resp.settings
+            if new is None or new == old:
+                continue
+            self.applied = new
+            if new.baud != old.baud:
+                set_baud = getattr(self.device, "set_baud", None)
+                if set_baud is not None:
+                    set_baud(new.baud)
+                log.info("client set the baud rate to %d", new.baud)
+            if new.nav_period_ms != old.nav_period_ms:
+                self.rate = 1000.0 / new.nav_period_ms
+                self.k = self.next_k(self.rate)
+                log.info("client set the navigation period to %d ms", new.nav_period_ms)
+            self.out_fmt = ubx_format(self.base_fmt, link, self.rate)
+            self._line_check_at = self.stats.epochs + self.recent_sizes.maxlen
+            if new.sbas_enabled != old.sbas_enabled:
+                prof = self.rx.profile
+                self.rx = replace(self.rx, profile=replace(
+                    prof, sbas=replace(prof.sbas, enabled=new.sbas_enabled)))
+                log.info("client set SBAS %s", "on" if new.sbas_enabled else "off")
 
     def sent(self, data: bytes | None, has_fix: bool) -> None:
         """Queue the epoch's NMEA (None: every sentence switched off) and move to the next
@@ -386,6 +464,12 @@ def tick(
             else:
                 for b in idx:
                     data[b] = nmea.epoch_sentences(fixes, b, fmt)
+        sol = None
+        for b, m in enumerate(group):
+            if isinstance(m.link, UbxLink):  # (its UBX around the NMEA, at the link's rates)
+                if sol is None:
+                    sol = ubx_messages.solution(fixes, m.link.uere_m)
+                data[b] = m.link.output(fixes, b, m.stats.epochs, data[b] or b"", sol) or None
         out.append((group, fixes, data))
     return out
 
@@ -457,7 +541,7 @@ def run_daemon(
     stop: threading.Event,
     on_epoch: Callable[[Fixes, DaemonStats], None] | None = None,
     max_epochs: int | None = None,
-    link: mtk.MtkLink | None | str = "profile",
+    link: mtk.MtkLink | UbxLink | None | str = "profile",
 ) -> DaemonStats:
     """Emit one epoch per period until ``stop`` is set (or ``max_epochs`` epochs): one
     receiver, :func:`run_receivers` with one member (see :class:`LiveReceiver` for the

@@ -97,7 +97,7 @@ def _groups(prn: tuple[int, ...], talker: str, version: str) -> tuple[tuple[_Gro
     order. A number of no known system is listed with GPS as it is.
     """
     nums = np.asarray(prn, dtype=np.int64)
-    if version != "4.11":
+    if version == "2.3":
         whole = _Group(talker, slice(None), nums, "")
         return (whole,), (whole,)
     by_id: dict[int, list[int]] = {}
@@ -341,7 +341,7 @@ def _render_block(
     status = _char(np.where(no_fix, ord("V"), ord("A")))
     letter = [",", _char(_MODE_LETTERS[q])] if fmt.mode_letter else []
     # NMEA 4.10+: RMC's navigational status after the mode; "V", no status given (as u-blox)
-    nav_status = [",V"] if fmt.version == "4.11" else []
+    nav_status = [",V"] if fmt.version != "2.3" else []
     every = dict(fmt.every)
     emit: dict[str, np.ndarray | None] = {name: None for name in fmt.sentences}
     if every:
@@ -608,7 +608,7 @@ def _render_scalar(
     course = _opt_s(c, 3, cd, zero)
     status = "V" if no_fix else "A"
     letter = "," + "NADPRFEMS"[q] if fmt.mode_letter else ""
-    nav_status = ",V" if fmt.version == "4.11" else ""  # (see _render_block)
+    nav_status = ",V" if fmt.version != "2.3" else ""  # (see _render_block)
     every = dict(fmt.every)
     fix_no = round(t * fmt.fix_rate_hz) if every else 0
 
