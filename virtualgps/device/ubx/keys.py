@@ -23,7 +23,8 @@ Each :class:`ConfigKey` names what it sets as a *target* tuple that
 ("extra",)                 stored and read back, no effect on the emulation
 =========================  ================================================================
 
-The set is what PX4 (PX4-GPSDrivers ``src/ubx.cpp``, ``configure`` / ``configureDevice``),
+The set is what PX4 (PX4-GPSDrivers ``src/ubx.cpp``, ``configure`` / ``configureDevice``,
+including the NAVSPG-INFIL_MINCNO / CONSTR_DGNSSTO keys of its 2025 revision),
 ArduPilot and gpsd write to an M9: UART1/UART2/USB/I2C/SPI protocol enables and baud rates,
 the UART framing keys, RATE, NAVSPG, ODO, ITFM, SBAS and SIGNAL keys, and the MSGOUT keys of
 every NAV/MON message we emit (plus RXM-RTCM and the standard NMEA sentences), per port. A key
@@ -187,6 +188,14 @@ def _build() -> dict[int, ConfigKey]:
                   lo=-(2**31), hi=2**31 - 1),
         ConfigKey(0x401100C2, "CFG-NAVSPG-CONSTR_ALTVAR", ("nav5", "fixed_alt_var_cm2"),
                   hi=2**32 - 1),
+        # PX4-GPSDrivers src/ubx.cpp, GPSDriverUBX::configureDevice (since PR #189, 2025) puts
+        # these two in the batch it needs ACKed when GPS_UBX_MIN_CNO / GPS_UBX_DGNSS_TO are set:
+        # unknown to us, the whole batch was NAKed and PX4 gave up configuring the M9.
+        # CONSTR_DGNSSTO (s) is CFG-NAV5's dgnssTimeout (UBX-13003221 CFG-NAV5); INFIL_MINCNO
+        # (dB-Hz) has no CFG-NAV5 field and is stored. Its default, 6 dB-Hz, is the one
+        # PX4-Autopilot PR #25720 quotes, not checked against the interface description here.
+        ConfigKey(0x201100A3, "CFG-NAVSPG-INFIL_MINCNO", ("extra",), hi=255, default=6),
+        ConfigKey(0x201100C4, "CFG-NAVSPG-CONSTR_DGNSSTO", ("nav5", "dgnss_timeout_s"), hi=255),
         _bool(0x10220001, "CFG-ODO-USE_ODO", ("extra",)),
         _bool(0x10220002, "CFG-ODO-USE_COG", ("extra",)),
         _bool(0x10220003, "CFG-ODO-OUTLPVEL", ("extra",)),

@@ -595,6 +595,7 @@ _NAMES = {M.NAV_POSLLH: "NAV-POSLLH", M.NAV_STATUS: "NAV-STATUS", M.NAV_DOP: "NA
           M.NAV_TIMEGPS: "NAV-TIMEGPS", M.NAV_TIMEUTC: "NAV-TIMEUTC",
           M.NAV_SVINFO: "NAV-SVINFO", M.NAV_SAT: "NAV-SAT", M.NAV_EOE: "NAV-EOE",
           M.MON_VER: "MON-VER", M.MON_HW: "MON-HW", M.MON_RF: "MON-RF",
+          (1, 0x01): "NAV-POSECEF", (1, 0x11): "NAV-VELECEF", (1, 0x26): "NAV-TIMELS",
           (6, 0x00): "CFG-PRT", (6, 0x01): "CFG-MSG", (6, 0x04): "CFG-RST",
           (6, 0x08): "CFG-RATE", (6, 0x09): "CFG-CFG", (6, 0x16): "CFG-SBAS",
           (6, 0x24): "CFG-NAV5", (6, 0x3E): "CFG-GNSS", (6, 0x8A): "CFG-VALSET",
