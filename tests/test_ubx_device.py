@@ -141,17 +141,46 @@ def test_a_flight_stacks_configuration_brings_nav_pvt_at_its_rate_and_baud(tmp_p
     assert all(abs(x - 52.14) < 0.01 for x in lat)
 
 
-def test_nav_pvt_agrees_with_the_same_epochs_nmea(tmp_path):
-    """With NMEA and NAV-PVT both on, each epoch's NAV-PVT (written before the NMEA, as the
+def _nav_sat(m) -> dict[tuple[int, int], tuple[int, int, int, int]]:
+    """NAV-SAT's satellites: (gnssId, svId) -> (cno, elev, azim, svUsed)."""
+    out = {}
+    for k in range(1, m.numSvs + 1):
+        key = (getattr(m, f"gnssId_{k:02d}"), getattr(m, f"svId_{k:02d}"))
+        out[key] = tuple(getattr(m, f"{f}_{k:02d}") for f in ("cno", "elev", "azim", "svUsed"))
+    return out
+
+
+def _gsv(msgs: list) -> dict[tuple[int, int], tuple[int, int, int]]:
+    """One epoch's GSV satellites: (gnssId, svId) -> (snr, elevation, azimuth); GPGSV GPS
+    1-32, GLGSV GLONASS 65-96 (svId 1-24 in NAV-SAT)."""
+    out = {}
+    for g in msgs:
+        gnss = {"GPGSV": 0, "GLGSV": 6}[g.identity]
+        for k in range(1, 5):
+            sv = getattr(g, f"svid_{k:02d}", "")
+            if sv in ("", None):
+                continue
+            sv = int(sv)
+            key = (6, sv - 64) if gnss == 6 else ((1, sv + 87) if sv > 32 else (0, sv))
+            snr = getattr(g, f"cno_{k:02d}")
+            out[key] = (int(snr) if snr != "" else 0, int(getattr(g, f"elv_{k:02d}")),
+                        int(getattr(g, f"az_{k:02d}")))
+    return out
+
+
+def test_nav_pvt_and_nav_sat_agree_with_the_same_epochs_nmea(tmp_path):
+    """With NMEA, NAV-PVT and NAV-SAT on, each epoch's NAV-PVT (written before the NMEA, as the
     module orders its output) names the GGA's time, position to the GGA's printed digits,
-    satellites used and fix, and the RMC's speed."""
+    satellites used and fix, and the RMC's speed; NAV-SAT lists GSV's satellites with the same
+    C/N0, elevation and azimuth, and marks used those GSA names."""
     daemon = _daemon(tmp_path, "ublox-m8n")
     try:
         fd = _open(daemon.link)
         try:
             _read_for(fd, 1.5)
-            os.write(fd, _ubx("CFG", "CFG-MSG", pyubx2.SET, msgClass=0x01, msgID=0x07,
-                              rateUART1=1))
+            for mid in (0x07, 0x35):  # NAV-PVT, NAV-SAT
+                os.write(fd, _ubx("CFG", "CFG-MSG", pyubx2.SET, msgClass=0x01, msgID=mid,
+                                  rateUART1=1))
             _read_for(fd, 1.2)
             stream = _read_for(fd, 5.0)
         finally:
@@ -160,16 +189,14 @@ def test_nav_pvt_agrees_with_the_same_epochs_nmea(tmp_path):
         code, err = daemon.stop()
     assert code == 0, err
     msgs = _parse_all(stream)
+    pvt_at = [k for k, m in enumerate(msgs) if m.identity == "NAV-PVT"]
     pairs = 0
-    for k, m in enumerate(msgs):
-        if m.identity != "NAV-PVT":
-            continue
-        rest = msgs[k + 1:]
-        gga = next((x for x in rest if x.identity == "GNGGA"), None)
-        rmc = next((x for x in rest if x.identity == "GNRMC"), None)
-        if gga is None or rmc is None or next(
-                (x for x in rest if x.identity == "NAV-PVT"), gga) is not gga and \
-                rest.index(gga) > rest.index(next(x for x in rest if x.identity == "NAV-PVT")):
+    for k, nxt in zip(pvt_at, pvt_at[1:], strict=False):  # each whole epoch
+        m, epoch = msgs[k], msgs[k + 1:nxt]
+        gga = next((x for x in epoch if x.identity == "GNGGA"), None)
+        rmc = next((x for x in epoch if x.identity == "GNRMC"), None)
+        sat = next((x for x in epoch if x.identity == "NAV-SAT"), None)
+        if gga is None or rmc is None or sat is None:
             continue
         pairs += 1
         assert (m.hour, m.min, m.second) == (gga.time.hour, gga.time.minute, gga.time.second)
@@ -180,6 +207,15 @@ def test_nav_pvt_agrees_with_the_same_epochs_nmea(tmp_path):
         assert abs(m.hMSL / 1000.0 - gga.alt) <= 0.051
         assert m.numSV == int(gga.numSV)
         assert abs(m.gSpeed / 1000.0 - rmc.spd * 0.514444) < 0.001
+        gsv = _gsv([x for x in epoch if x.identity in ("GPGSV", "GLGSV")])
+        nav = _nav_sat(sat)
+        assert set(gsv) == set(nav)
+        for key, (snr, el, az) in gsv.items():
+            assert nav[key][:3] == (snr, el, az), key
+        used_gsa = {int(getattr(g, f"svid_{j:02d}")) for g in epoch if g.identity == "GNGSA"
+                    for j in range(1, 13) if getattr(g, f"svid_{j:02d}", "") not in ("", None)}
+        used_nav = {sv + 64 if gnss == 6 else sv for (gnss, sv), v in nav.items() if v[3]}
+        assert used_gsa == used_nav and len(used_nav) == m.numSV
     assert pairs >= 3
 
 
