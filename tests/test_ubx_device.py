@@ -219,6 +219,43 @@ def test_nav_pvt_and_nav_sat_agree_with_the_same_epochs_nmea(tmp_path):
     assert pairs >= 3
 
 
+def test_a_system_switched_off_is_neither_tracked_nor_listed(tmp_path):
+    """An M9 client switching GLONASS off (CFG-VALSET CFG-SIGNAL-GLO_ENA = 0, as PX4 does for
+    a GPS_1_GNSS mask without it): from the next epoch no GLONASS satellite is listed in NAV-SAT
+    or GSV, none used, and the fix goes on with the others."""
+    daemon = _daemon(tmp_path, "ublox-m9n")
+    try:
+        fd = _open(daemon.link)
+        try:
+            _read_for(fd, 2.2)
+            os.write(fd, _ubx("CFG", "CFG-MSG", pyubx2.SET, msgClass=0x01, msgID=0x35,
+                              rateUART1=1))
+            before = _parse_all(_read_for(fd, 2.0))
+            os.write(fd, pyubx2.UBXMessage.config_set(1, 0, [("CFG_SIGNAL_GLO_ENA", 0)])
+                     .serialize())
+            got = _answer(fd, 1.5, b"\xb5\x62\x05")
+            assert [_name(m) for m in got if m.identity == "ACK-ACK"] == ["CFG-VALSET"]
+            _read_for(fd, 1.1)
+            after = _parse_all(_read_for(fd, 2.5))
+        finally:
+            os.close(fd)
+    finally:
+        code, err = daemon.stop()
+    assert code == 0, err
+    assert "client set the systems tracked: GPS, Galileo, BeiDou" in err
+
+    def glonass(msgs: list) -> tuple[int, int]:
+        sats = [_nav_sat(m) for m in msgs if m.identity == "NAV-SAT"]
+        listed = sum(1 for m in msgs if m.identity == "GLGSV" for k in range(1, 5)
+                     if getattr(m, f"svid_{k:02d}", "") not in ("", None))
+        return sum(1 for s in sats for g, _ in s if g == 6), listed
+
+    assert all(n > 0 for n in glonass(before))
+    assert glonass(after) == (0, 0)
+    gga = [m for m in after if m.identity == "GNGGA"]
+    assert gga and all(m.quality == 1 for m in gga)
+
+
 # (no BeiDou TLE set is bundled: the M9's BeiDou satellites are left out with a warning)
 @pytest.mark.parametrize("profile, hw, systems", [("ublox-m8n", "00080000", {0, 6}),
                                                   ("ublox-m9n", "00190000", {0, 2, 6})])

@@ -229,6 +229,12 @@ def simulate(
             sky.el_deg, prof.signal.cn0_horizon_dbhz, prof.signal.cn0_zenith_dbhz
         ) + cn0_offset_db
         cn0 = np.where(seen, cn0, np.nan)
+    # systems switched off since the ephemeris was loaded (a u-blox client's CFG-GNSS): neither
+    # tracked nor listed
+    off = prof.constellations.untracked(rx.ephemeris.prn)
+    if off is not None:
+        seen = seen & ~off
+        cn0 = np.where(off, np.nan, cn0)
     if state.usable_from_t_unix_s is not None:  # start-up: ephemerides still being decoded
         decoded = t[:, None] >= (state.usable_from_t_unix_s if rows
                                  else state.usable_from_t_unix_s[None, :])
@@ -280,6 +286,8 @@ def simulate(
     course = np.degrees(np.arctan2(v_rep[:, 0], v_rep[:, 1])) % 360.0
 
     in_view = (sky.el_deg >= 0.0) & pose_valid[:, None]  # NaN elevation: False
+    if off is not None:
+        in_view = in_view & ~off
     nofix = np.where(has_fix, 1.0, np.nan)
     truth_nan = np.where(pose_valid, 1.0, np.nan)
     fixes = Fixes(

@@ -323,6 +323,16 @@ class ConstellationsParams:
             return "G"
         return "".join(dict.fromkeys(_sys.system_named(n).letter for n in self.systems))
 
+    def untracked(self, prn: Any) -> Any:
+        """Which satellites belong to a system of GPS, GLONASS, Galileo, BeiDou and QZSS that
+        this receiver does not track: (n_sat,) bool, or None when it tracks every such system
+        among ``prn`` (the usual case: the ephemeris holds the profile's systems; a u-blox
+        client's CFG-GNSS switches systems off while the run goes on). SBAS and numbers of no
+        known system are never untracked here."""
+        import numpy as np
+
+        return _untracked(self.letters(), tuple(np.asarray(prn, dtype=np.int64).tolist()))
+
     def per_satellite(self, prn: Any, key: str, gps_value: float) -> Any:
         """The setting ``key`` (``"sis_factor"``, ``"cn0_offset_db"``) of each satellite's
         system: ``gps_value`` for GPS, SBAS, numbers of no known system and systems the table
@@ -338,6 +348,18 @@ class ConstellationsParams:
         # (cached per constellation: the live loop asks every epoch)
         return _per_satellite(self, key, tuple(np.asarray(prn, dtype=np.int64).tolist()),
                               gps_value)
+
+
+@functools.lru_cache(maxsize=32)
+def _untracked(letters: str, prn: tuple[int, ...]) -> Any:
+    letters_of = _sys.letters(prn)
+    import numpy as np
+
+    off = np.isin(letters_of, [x for x in "GRECJ" if x not in letters])
+    if not off.any():
+        return None
+    off.flags.writeable = False  # (shared by every call)
+    return off
 
 
 @functools.lru_cache(maxsize=32)

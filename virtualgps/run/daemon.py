@@ -34,6 +34,7 @@ from virtualgps.receiver.records import Fixes
 from virtualgps.receiver.skyview import compute_sky
 from virtualgps.receiver.state import ReceiverRows, ReceiverState, initial_state, restart
 from virtualgps.run.poseproviders import PoseProvider, SimClock
+from virtualgps.sky import systems as sky_systems
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +97,22 @@ def make_ubx_link(profile) -> UbxLink:
     defaults = ubx_defaults(profile.ubx.generation, baud=profile.baud, rate_hz=profile.rate_hz,
                             gnss=tuple(systems))
     return UbxLink(defaults)
+
+
+def tracking_systems(rx: Receiver, profile: Profile, enabled: frozenset[str]) -> Receiver:
+    """The receiver tracking the systems of its profile that a u-blox client left enabled
+    (CFG-GNSS, CFG-SIGNAL-*_ENA): a system switched off is neither tracked nor listed; one
+    switched on that the profile's ephemeris does not hold stays absent.
+
+    rx : the receiver now; profile : its profile at power-on; enabled : the names enabled
+    (``UbxSettings.enabled_gnss``: "GPS", "GLONASS", "Galileo", "BeiDou", "QZSS", ...)
+    """
+    cs = profile.constellations
+    systems = cs.systems if cs.enabled else ("GPS",)
+    keep = tuple(s for s in systems if sky_systems.system_named(s).name in enabled)
+    prof = rx.profile
+    return replace(rx, profile=replace(prof, constellations=replace(
+        prof.constellations, enabled=True, systems=keep)))
 
 
 def ubx_format(base: nmea.NmeaFormat, link: UbxLink, rate_hz: float) -> nmea.NmeaFormat | None:
@@ -332,6 +349,10 @@ class LiveReceiver:
                 self.rx = replace(self.rx, profile=replace(
                     prof, sbas=replace(prof.sbas, enabled=new.sbas_enabled)))
                 log.info("client set SBAS %s", "on" if new.sbas_enabled else "off")
+            if new.enabled_gnss != old.enabled_gnss:
+                self.rx = tracking_systems(self.rx, self.prof, new.enabled_gnss)
+                log.info("client set the systems tracked: %s",
+                         ", ".join(self.rx.profile.constellations.systems) or "none")
 
     def sent(self, data: bytes | None, has_fix: bool) -> None:
         """Queue the epoch's NMEA (None: every sentence switched off) and move to the next
