@@ -292,10 +292,7 @@ class LiveReceiver:
             if new is old:
                 continue
             if new.baud != old.baud:
-                set_baud = getattr(self.device, "set_baud", None)
-                if set_baud is not None:
-                    set_baud(new.baud)
-                log.info("client set the baud rate to %d", new.baud)
+                self._set_baud(new.baud)
             if new.fix_interval_ms != old.fix_interval_ms:
                 self.rate = (
                     prof.rate_hz
@@ -316,6 +313,13 @@ class LiveReceiver:
                 log.info("client set SBAS %s, static navigation %.2f m/s",
                          "on" if new.sbas_active else "off", new.static_nav_mps)
 
+    def _set_baud(self, baud: int) -> None:
+        """The line's new speed (the device's pacing or the port's), as a client set it."""
+        set_baud = getattr(self.device, "set_baud", None)
+        if set_baud is not None:
+            set_baud(baud)
+        log.info("client set the baud rate to %d", baud)
+
     def _service_ubx(self, link: UbxLink, data: bytes) -> None:
         """Answer a u-blox client and apply what it set: each reply is queued whole, then its
         settings applied (a baud change after the ACK has gone out at the old baud, as the
@@ -333,10 +337,7 @@ class LiveReceiver:
                 continue
             self.applied = new
             if new.baud != old.baud:
-                set_baud = getattr(self.device, "set_baud", None)
-                if set_baud is not None:
-                    set_baud(new.baud)
-                log.info("client set the baud rate to %d", new.baud)
+                self._set_baud(new.baud)
             if new.nav_period_ms != old.nav_period_ms:
                 self.rate = 1000.0 / new.nav_period_ms
                 self.k = self.next_k(self.rate)

@@ -445,12 +445,9 @@ class UbxLink:
             return nak
         source = {0: self.settings, 1: self.saved, 2: self.saved, 7: self.defaults}[p[1]]
         position = p[2] | (p[3] << 8)
-        found: list[K.ConfigKey] = []
-        for j in range(4, n, 4):
-            ks = K.lookup(int.from_bytes(p[j : j + 4], "little"))
-            if ks is None:
-                return nak
-            found += ks
+        found = _keys_named(p)
+        if found is None:
+            return nak
         data = b"".join(k.key_id.to_bytes(4, "little") + K.encode_value(k, key_value(source, k))
                         for k in found[position : position + 64])
         return ok(encode(CLASS_CFG, 0x8B, bytes((1, p[1], p[2], p[3])) + data))
@@ -459,12 +456,9 @@ class UbxLink:
         n = len(p)
         if n < 4 or (n - 4) % 4 or p[0] not in (0, 1) or not p[1] & 0x06 or n > 4 + 4 * 64:
             return nak
-        found: list[K.ConfigKey] = []
-        for j in range(4, n, 4):
-            ks = K.lookup(int.from_bytes(p[j : j + 4], "little"))
-            if ks is None:
-                return nak
-            found += ks
+        found = _keys_named(p)
+        if found is None:
+            return nak
         for k in found:
             self.saved = with_key(self.saved, k, key_value(self.defaults, k))
         return ok()
@@ -610,6 +604,18 @@ def _num(text: str, base: int = 10) -> int | None:
     t = text.strip()
     digits = "0123456789abcdefABCDEF"[: 10 if base == 10 else 22]
     return int(t, base) if t and all(c in digits for c in t) else None
+
+
+def _keys_named(p: bytes) -> list[K.ConfigKey] | None:
+    """The keys a VALGET / VALDEL payload names after its 4-byte header (wildcards expanded),
+    or None when one is unknown."""
+    found: list[K.ConfigKey] = []
+    for j in range(4, len(p), 4):
+        ks = K.lookup(int.from_bytes(p[j : j + 4], "little"))
+        if ks is None:
+            return None
+        found += ks
+    return found
 
 
 def _name(cls: int, mid: int) -> str:
