@@ -21,8 +21,9 @@ Choices (where the documents leave the value to the receiver's firmware):
 - **No fix** (``mode`` 1 or a NaN position): ``fixType`` 0, ``gnssFixOK`` 0, position 0 with
   ``hMSL`` = -17 000 mm (0 m above the ellipsoid at 0 N 0 E, where the EGM96 geoid is +17 m),
   velocities 0, ``hAcc``/``vAcc``/``tAcc``/``pAcc`` 0xFFFFFFFF, ``sAcc`` 20 m/s, ``headAcc`` 180
-  deg, every DOP 99.99: what u-blox modules write after a cold start as we read their logs
-  (not confirmed in the documents, which do not specify pre-fix contents). A real module keeps
+  deg, every DOP 99.99: what u-blox modules write after a cold start as recalled from their
+  logs (the NMEA of a NEO-M8N before a fix, quoted in public repositories, has DOPs 99.99; the
+  UBX values are not confirmed: the documents do not specify pre-fix contents). A real module keeps
   its last position after losing a fix; the fix record has none to keep, so this does not.
 - **Accuracies.** ``hAcc`` = sqrt(sigma_e^2 + sigma_n^2) and ``vAcc`` = sigma_u from the
   receiver's own ``sigma_enu_m`` (as GST reports it); where that is absent, HDOP (VDOP) times
