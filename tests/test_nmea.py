@@ -324,6 +324,26 @@ def test_no_fix_empty_style():
             parse_both(ln)
 
 
+def test_no_fix_ublox_style_writes_what_a_neo_m8n_writes():
+    """Before a fix a NEO-M8N writes (logs quoted in public repositories; NMEA 4.0 there, so
+    without GSA's system ID): ``$GNVTG,,,,,,,,,N*2E``, ``$GNGGA,,,,,,0,00,99.99,,,,,,*56``
+    (no time yet: here the time is known), ``$GNGSA,A,1,,,,,,,,,,,,,99.99,99.99,99.99*2E``."""
+    fmt = NmeaFormat(no_fix_style="ublox", dgps_fields="empty", talker="GN", time_decimals=2,
+                     sentences=("RMC", "VTG", "GGA", "GSA", "GLL"))
+    for epoch in (
+        nmea.render_batch(no_fix_fixes(60), fmt)[0],
+        nmea.epoch_sentences(no_fix_fixes(), 0, fmt),
+    ):
+        lines = sentences(epoch)
+        assert lines[0].startswith(b"$GNRMC,124640.25,V,,,,,,,280324,,,N*")
+        assert lines[1] == b"$GNVTG,,,,,,,,,N*2E\r\n"
+        assert lines[2].startswith(b"$GNGGA,124640.25,,,,,0,00,99.99,,,,,,*")
+        assert lines[3] == b"$GNGSA,A,1,,,,,,,,,,,,,99.99,99.99,99.99*2E\r\n"
+        assert lines[4].startswith(b"$GNGLL,,,,,124640.25,V,N*")
+        for ln in lines:
+            parse_both(ln)
+
+
 def test_position_estimate_printed_with_quality_zero():
     # MTK prints its estimate before the fix is valid: ...,W,0,4,,1127.8,M,-19.6,M,, (tr737A+)
     fx = make_fixes(n_t=1, quality=np.zeros(1, np.int8), mode=np.ones(1, np.int8))
@@ -424,6 +444,7 @@ def test_scalar_and_vectorised_paths_give_identical_bytes(seed):
     for fmt in (
         NmeaFormat(sentences=ALL),
         NmeaFormat(no_fix_style="empty", sentences=ALL, sats_used_digits=1, mode_letter=False),
+        NmeaFormat(no_fix_style="ublox", sentences=ALL, version="4.10", talker="GN"),
         NmeaFormat(
             time_decimals=2,
             latlon_decimals=6,

@@ -15,7 +15,7 @@ from typing import Any
 from virtualgps.exceptions import ConfigError
 
 SENTENCE_TYPES = ("GGA", "GSA", "GSV", "RMC", "VTG", "GLL", "GST", "ZDA")
-NO_FIX_STYLES = ("mtk", "empty")
+NO_FIX_STYLES = ("mtk", "empty", "ublox")
 NMEA_VERSIONS = ("2.3", "4.10", "4.11")
 
 # GSV: NMEA 0183 v2.3 allows 1 to 9 messages of 4 satellites.
@@ -38,8 +38,9 @@ class NmeaFormat:
     sats_used_digits : width of the GGA satellites-used field; 2 as NMEA 0183 ``xx`` (MT3339
         pads, ``0,04``; older MT3329 firmware writes ``1,4``: set 1 to mimic it)
     no_fix_style : ``"mtk"`` (placeholders ``8960.0000,N,00000.0000,E``, altitude 137.0, geoid
-        13.0, speed and course 0.00, as MT3301/MT3329 firmware) or ``"empty"`` (empty fields,
-        as MT3339 firmware and most other receivers)
+        13.0, speed and course 0.00, as MT3301/MT3329 firmware), ``"empty"`` (empty fields,
+        as MT3339 firmware and most other receivers) or ``"ublox"`` (empty fields, their unit
+        letters too, and DOPs 99.99, as u-blox modules: ``$GNGGA,,,,,,0,00,99.99,,,,,,``)
     dgps_fields : ``"mtk"`` (``0000,0000`` in GGA's DGPS age/station with quality 2) or ``"empty"``
     mode_letter : write the NMEA 2.3 mode letter (A/D/N) in RMC, VTG and GLL
     gsv_max_sats : at most this many satellites in GSV (1..36)

@@ -57,6 +57,9 @@ from virtualgps.receiver.nmea_format import NmeaFormat
 from virtualgps.receiver.records import QUALITY_DGPS, QUALITY_NONE, Fixes
 from virtualgps.sky import systems
 
+# u-blox's DOPs without a fix (NEO-M8N logs quoted in public repositories:
+# $GNGGA,,,,,,0,00,99.99,,,,,,*56 and $GNGSA,A,1,,,,,,,,,,,,,99.99,99.99,99.99*2E).
+UBLOX_NO_FIX_DOP = 99.99
 # MTK placeholders before the first fix (gpsd-mtk/tr737A+.log, mtk-3301.log).
 MTK_PLACEHOLDER_LAT_DEG = 90.0  # printed as 8960.0000 (89 deg 60 min), MTK's habit
 MTK_PLACEHOLDER_ALT_MSL_M = 137.0
@@ -274,6 +277,7 @@ def _render_block(
     if not np.isfinite(t).all():
         raise ValueError("fixes.t_unix_s must be finite to be written as NMEA time")
     mtk = fmt.no_fix_style == "mtk"
+    ublox = fmt.no_fix_style == "ublox"
     T = fmt.talker
     none = np.zeros(n, dtype=bool)
 
@@ -328,8 +332,15 @@ def _render_block(
         _clip_finite(np.asarray(a[sl], dtype=np.float64), 0.0, 99.0)
         for a in (fixes.pdop, fixes.hdop, fixes.vdop)
     ]
-    pdop, hdop, vdop = (fx(a, 2, dd_, mode_none) for a in dops)
-    hdop_gga = fx(dops[1], 2, dd_, no_fix)  # MTK: empty HDOP with quality 0 (tr737A+.log:13)
+    if ublox:  # u-blox: DOPs 99.99 without a fix (NEO-M8N logs: $GNGGA,,,,,,0,00,99.99,...)
+        pdop, hdop, vdop = (fx(np.where(mode_none, UBLOX_NO_FIX_DOP, a), 2, dd_, none)
+                            for a in dops)
+        hdop_gga = fx(np.where(no_fix, UBLOX_NO_FIX_DOP, dops[1]), 2, dd_, none)
+    else:
+        pdop, hdop, vdop = (fx(a, 2, dd_, mode_none) for a in dops)
+        hdop_gga = fx(dops[1], 2, dd_, no_fix)  # MTK: empty HDOP with quality 0 (tr737A+.log:13)
+    # u-blox leaves the unit letters of empty fields empty too ($GNVTG,,,,,,,,,N)
+    unit_m = _choose(no_fix, ",,", ",M,") if ublox else ",M,"
     speed = np.asarray(fixes.speed_mps[sl], dtype=np.float64)
     # MTK writes 0.00 speed and course without a fix (tr737A+.log:12, mtk-3301.log VTG)
     knots = fx(speed * MPS_TO_KNOTS, 4, sd, none, 0.0)
@@ -369,9 +380,9 @@ def _render_block(
                 hdop_gga,
                 ",",
                 alt,
-                ",M,",
+                unit_m,
                 geoid,
-                ",M,",
+                unit_m,
                 _choose(dgps_on, "0000,0000", ","),
             ]
         elif name == "GSA":
@@ -424,7 +435,11 @@ def _render_block(
                 *nav_status,
             ]
         elif name == "VTG":
-            body = [T + "VTG,", course, ",T,,M,", knots, ",N,", kmh, ",K", *letter]
+            if ublox:
+                body = [T + "VTG,", course, _choose(no_fix, ",,,,", ",T,,M,"), knots,
+                        _choose(no_fix, ",,", ",N,"), kmh, _choose(no_fix, ",", ",K"), *letter]
+            else:
+                body = [T + "VTG,", course, ",T,,M,", knots, ",N,", kmh, ",K", *letter]
         elif name == "GLL":
             body = [T + "GLL,", latlon, ",", time, ",", status, *letter]
         elif name == "GST":
@@ -592,7 +607,11 @@ def _render_scalar(
     geoid_m = math.nan if no_fix else float(fixes.geoid_sep_m[i])  # (see _render_block)
     geoid = _opt_s(geoid_m, 4, ad, MTK_PLACEHOLDER_GEOID_SEP_M if ph else None)
 
+    ublox = fmt.no_fix_style == "ublox"
+
     def dop(x: float, empty: bool) -> str:
+        if empty and ublox:
+            return _fx_s(UBLOX_NO_FIX_DOP, 2, dd_)
         if empty or not math.isfinite(x):
             return ""
         return _fx_s(min(max(x, 0.0), 99.0), 2, dd_)
@@ -620,13 +639,16 @@ def _render_scalar(
             n_used = sum(used_row)
             sats = f"{n_used:02d}" if fmt.sats_used_digits == 2 else str(n_used)
             dgps = "0000,0000" if fmt.dgps_fields == "mtk" and q == QUALITY_DGPS else ","
+            m = "" if ublox and no_fix else "M"
             out.append(
-                f"{T}GGA,{time},{latlon},{q},{sats},{dop(hdop_v, no_fix)},{alt},M,{geoid},M,{dgps}"
+                f"{T}GGA,{time},{latlon},{q},{sats},{dop(hdop_v, no_fix)},{alt},{m},{geoid},{m},"
+                f"{dgps}"
             )
         elif name == "GSA":
             for g in gsa_groups:
                 if mode_none:
-                    out.append(g.talker + "GSA,A,1,,,,,,,,,,,,,,," + g.tail)
+                    dops = ",".join([dop(math.nan, True)] * 3)
+                    out.append(g.talker + "GSA,A,1,,,,,,,,,,,,," + dops + g.tail)
                     continue
                 mine = (used_row if isinstance(g.cols, slice)
                         else [used_row[c] for c in g.cols.tolist()])
@@ -646,7 +668,10 @@ def _render_scalar(
                 f",,{letter}{nav_status}"
             )
         elif name == "VTG":
-            out.append(f"{T}VTG,{course},T,,M,{knots},N,{kmh},K{letter}")
+            if ublox and no_fix:
+                out.append(f"{T}VTG,{course},,,,{knots},,{kmh},{letter}")
+            else:
+                out.append(f"{T}VTG,{course},T,,M,{knots},N,{kmh},K{letter}")
         elif name == "GLL":
             out.append(f"{T}GLL,{latlon},{time},{status}{letter}")
         elif name == "GST":
