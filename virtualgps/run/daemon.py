@@ -176,7 +176,10 @@ class LiveReceiver:
     whole, after any epoch already queued, so it never splits an epoch) and applied: restarts
     (no fix until the start's TTFF), fix interval (epochs on multiples of the new interval),
     baud (the device's pacing or port speed), sentence rates; SBAS and the static-navigation
-    threshold switch those effects. Without a link the client's bytes are read and discarded.
+    threshold switch those effects. With a u-blox link its boot notices go out at once, each
+    epoch carries the UBX messages the client switched on around the NMEA, and UBX commands
+    are answered and applied the same way (:meth:`_service_ubx`). Without a link the client's
+    bytes are read and discarded.
 
     Parameters
     ----------
