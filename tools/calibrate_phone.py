@@ -1,5 +1,5 @@
-"""Calibrate a phone profile with ``virtualgps gap`` on each shared phone data set, and test each
-fit on the other, which it never saw.
+"""Calibrate a phone profile with ``virtualgps gap`` on each shared phone data set, test each fit
+on the other, which it never saw, and make one profile of both.
 
     python tools/calibrate_phone.py [--data ../shared/data] [--seeds 30] [--out phone-cal]
 
@@ -12,8 +12,10 @@ model of its own). For each data set the diagnosis of the base fits what it need
 calibrated profile); then each fit is diagnosed on the other data set, beside the base. The
 held-out gap of a profile as it stands is the outer test's ``gap_baseline``.
 
-docs/profiles.md ("A phone profile") holds the numbers of the last run, and why no built-in
-phone profile is made of them yet.
+Then both together: each effect a fit added is tried, as that fit set it, on the other data
+set, and kept where it does not raise that data set's held-out gap above the base's; the kept
+ones make ``joint/phone.toml``, diagnosed on both. The built-in ``phone`` profile is that file
+(with its description); docs/profiles.md ("A phone profile") holds the numbers of the last run.
 """
 
 from __future__ import annotations

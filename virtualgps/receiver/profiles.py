@@ -22,7 +22,7 @@ from virtualgps.sky import systems as _sys
 from virtualgps.sky.skymask import SKY_MASK_MAX_CELL, SkyMaskParams
 from virtualgps.tomlfile import read_toml, toml_key_line
 
-BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal", "ublox-m8n", "ublox-m9n")
+BUILTIN_PROFILES = ("holux-m1000", "usarsim", "ideal", "ublox-m8n", "ublox-m9n", "phone")
 DEFAULT_PROFILE = "holux-m1000"
 
 # Settings of a run (not of the receiver) that a config file may set at its top level.
