@@ -1,6 +1,8 @@
 """Rebuild tests/data/skyfield_azel.csv: skyfield's azimuth/elevation of every satellite of each
-bundled TLE set (GPS, and the GLONASS and Galileo sets of 2017-03-28), at a table of sites and
-times, as an independent reference for virtualgps.sky.ephemeris + virtualgps.geodesy.
+bundled TLE set (GPS, and the GLONASS and Galileo sets of 2017-03-28) and of three BeiDou
+satellites of chosen elements (tests/data/beidou-synthetic-2017-03-28.tle, written here: no
+BeiDou set is at hand), at a table of sites and times, as an independent reference for
+virtualgps.sky.ephemeris + virtualgps.geodesy.
 
 Usage: python tools/make_skyfield_refs.py [--out tests/data/skyfield_azel.csv]
 
@@ -70,14 +72,47 @@ def read_three_line(path: Path) -> list[tuple[int, int, str, str]]:
     return out
 
 
+# BeiDou: no TLE set of its group is at hand (none in ../shared/data, none bundled, no network
+# at test time), so three satellites with BeiDou's three orbit types are written from chosen
+# elements, named as CelesTrak names BeiDou satellites: a MEO (C19, 55 deg, 1.8623 rev/day,
+# ~21,500 km up), an IGSO (C38, 55 deg, geosynchronous) and a GEO (C01, over 140 E). They test
+# the path from a BeiDou TLE name to its number and its az/el (against skyfield), not orbits.
+BEIDOU_SYNTHETIC = "beidou-synthetic-2017-03-28.tle"
+_BEIDOU_ELEMENTS = [  # (name, norad, incl_deg, raan_deg, ecc, argp_deg, mean_anom_deg, rev_day)
+    ("BEIDOU-3 M1 (C19)", 90019, 55.0, 120.0, 0.0005, 30.0, 200.0, 1.86231000),
+    ("BEIDOU-3 IGSO-1 (C38)", 90038, 55.0, 20.0, 0.0020, 180.0, 90.0, 1.00270000),
+    ("BEIDOU-2 G1 (C01)", 90001, 0.5, 80.0, 0.0002, 10.0, 56.1, 1.00271000),
+]
+
+
+def _tle_checksum(line: str) -> int:
+    return sum(int(ch) if ch.isdigit() else 1 if ch == "-" else 0 for ch in line) % 10
+
+
+def beidou_synthetic_tle(epoch_yyddd: str = "17087.50000000") -> str:
+    """Three-line TLEs of :data:`_BEIDOU_ELEMENTS` at ``epoch_yyddd`` (2017-03-28 12:00 UTC).
+    The GEO's mean anomaly puts it over 140 deg E at the epoch (its right ascension of the
+    ascending node plus argument of perigee plus mean anomaly minus GMST)."""
+    out = []
+    for name, norad, incl, raan, ecc, argp, ma, n in _BEIDOU_ELEMENTS:
+        l1 = (f"1 {norad:05d}U 17001A   {epoch_yyddd}  .00000000  00000-0  00000-0 0  999")
+        l2 = (f"2 {norad:05d} {incl:8.4f} {raan:8.4f} {round(ecc * 1e7):07d} {argp:8.4f} "
+              f"{ma:8.4f} {n:11.8f}    1")
+        out += [name, l1 + str(_tle_checksum(l1)), l2 + str(_tle_checksum(l2))]
+    return "\n".join(out) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "tests" / "data" / "skyfield_azel.csv")
     args = ap.parse_args()
     ts = load.timescale()  # bundled UT1/leap-second tables; no download
     rows = []
-    for tle_name in TLE_FILES:
-        sats = read_three_line(REPO / "ephemeris" / tle_name)
+    synthetic = REPO / "tests" / "data" / BEIDOU_SYNTHETIC
+    synthetic.write_text(beidou_synthetic_tle(), encoding="ascii")
+    for tle_name in [*TLE_FILES, BEIDOU_SYNTHETIC]:
+        folder = synthetic.parent if tle_name == BEIDOU_SYNTHETIC else REPO / "ephemeris"
+        sats = read_three_line(folder / tle_name)
         sky_sats = [((prn, norad), EarthSatellite(l1, l2, str(norad), ts))
                     for prn, norad, l1, l2 in sats]
         epochs = np.array([s.epoch.utc_datetime().timestamp() for _, s in sky_sats])
