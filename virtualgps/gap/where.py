@@ -11,8 +11,9 @@ hold the same epochs (``steady`` when the log starts with a fix, ``open`` in ope
 row, the other names listed in ``same_as``.
 
 The scalar gap score of a unit of data (a run, or a time block of a single run) is the mean
-over the score metrics it supports of each metric's distance in units of the seeds' own spread
-(:func:`virtualgps.gap.bands.distance`); lower is better, about 0.1 under the null.
+over the score metrics it supports of each metric's distance in units of the seeds' own spread,
+guarded by the profile under test's (:func:`virtualgps.gap.bands.distance_against`); lower is
+better, about 0.1 under the null.
 """
 
 from __future__ import annotations
