@@ -39,7 +39,8 @@ def _common(p: argparse.ArgumentParser, start_time_help: str | None) -> None:
     )
     p.add_argument(
         "--profile",
-        help="receiver profile: holux-m1000 (default), usarsim, ideal, or a profile TOML path",
+        help="receiver profile: holux-m1000 (default), usarsim, ideal, ublox-m8n, ublox-m9n, "
+        "phone, or a profile TOML path",
     )
     p.add_argument(
         "--config", help="TOML file of settings (precedence: defaults < profile < config < flags)"
