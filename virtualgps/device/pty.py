@@ -196,6 +196,9 @@ class PtyDevice(QueuedLine):
     watch_master : bool
         Whether the master's events (client bytes, a hang-up) should wake the writer now (set by
         :meth:`step`; False while no reader is attached, when POLLHUP would wake it at once).
+    client_log_level : int
+        The logging level of "a client opened" / "no client has ... open" (INFO; a large
+        fleet's owner sets DEBUG: a thousand clients coming at once are not news)
 
     Raises
     ------
@@ -217,6 +220,7 @@ class PtyDevice(QueuedLine):
         self._rx_lock = threading.Lock()
         self._rx = bytearray()
         self.link_path = Path(link_path) if link_path is not None else None
+        self.client_log_level = logging.INFO
         self.reader_attached = False
         self.kernel_flushes = 0
         self.rx_dropped_bytes = 0
@@ -257,12 +261,16 @@ class PtyDevice(QueuedLine):
         try:
             if self.link_path is not None:
                 _make_link(self.link_path, self.slave_path)
-            self._wake = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+            # The writer thread's wake-up, and an event readable when client bytes wait in _rx
+            # (for the daemon's select). A device an owner steps (threaded=False) needs neither:
+            # one descriptor per device, so a fleet of ten thousand fits the usual limits.
+            self._wake = self._rx_event = -1
+            if threaded:
+                self._wake = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+                self._rx_event = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         except BaseException:
             os.close(master_fd)
             raise
-        # Turns readable when client bytes wait in _rx (for the daemon's select).
-        self._rx_event = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self.alive = True
         self._thread: threading.Thread | None = None
         if threaded:
@@ -298,13 +306,15 @@ class PtyDevice(QueuedLine):
         with self._lock:
             data = bytes(self._rx)
             self._rx.clear()
-            with contextlib.suppress(BlockingIOError):
-                os.eventfd_read(self._rx_event)
+            if self._rx_event >= 0:
+                with contextlib.suppress(BlockingIOError):
+                    os.eventfd_read(self._rx_event)
         return data
 
     def fileno(self) -> int | None:
-        """Return an event descriptor readable while client bytes wait for read_available."""
-        return None if self._closed else self._rx_event
+        """Return an event descriptor readable while client bytes wait for read_available
+        (None once closed, or for a device its owner steps: its owner knows)."""
+        return None if self._closed or self._rx_event < 0 else self._rx_event
 
     def _change_rate(self, baud: int) -> None:
         """Pace output at ``baud`` from now on (bytes already queued included). The slave's
@@ -344,8 +354,9 @@ class PtyDevice(QueuedLine):
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         for fd in (self._master, self._wake, self._rx_event):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
         if self.link_path is not None:
             try:
                 # Only our own link: another run may have taken the name over meanwhile.
@@ -374,8 +385,9 @@ class PtyDevice(QueuedLine):
 
     @staticmethod
     def _signal(event_fd: int) -> None:
-        with contextlib.suppress(OSError):
-            os.eventfd_write(event_fd, 1)
+        if event_fd >= 0:
+            with contextlib.suppress(OSError):
+                os.eventfd_write(event_fd, 1)
 
     def _wake_writer(self) -> None:
         if self.on_wake is not None:
@@ -511,12 +523,13 @@ class PtyDevice(QueuedLine):
 
     def _on_attach(self) -> None:
         self.reader_attached = True
-        log.info("a client opened %s", self.slave_path)
+        log.log(self.client_log_level, "a client opened %s", self.slave_path)
         self._flush_kernel()  # anything left from before this client is stale to it
 
     def _on_detach(self) -> None:
         self.reader_attached = False
-        log.info(
+        log.log(
+            self.client_log_level,
             "no client has %s open; holding at most %.1f s of output",
             self.slave_path,
             self.max_backlog_s,

@@ -50,8 +50,11 @@ class DaemonStats:
 
     epochs: int = 0
     fixes: int = 0
+    # (late: sent over half a period after their time; skipped: the loop fell behind by over a
+    # period, e.g. a suspended machine; thinned: left out to keep up, see Thinning)
     late_epochs: int = 0
     skipped_epochs: int = 0
+    thinned_epochs: int = 0
     max_lateness_s: float = 0.0
     link: mtk.MtkLink | UbxLink | None = None
 
@@ -369,6 +372,15 @@ class LiveReceiver:
         self.t_last = self.t_next_unix_s
         self.stats.epochs += 1
         self.stats.fixes += int(has_fix)
+        self._advance()
+
+    def skip(self) -> None:
+        """Leave this epoch out (the loop cannot compute every receiver's: see
+        :class:`Thinning`) and move to the next."""
+        self.stats.thinned_epochs += 1
+        self._advance()
+
+    def _advance(self) -> None:
         self.k += 1
         # Fell behind by more than one period (machine suspended, debugger): skip to now rather
         # than emit a burst of old epochs.
@@ -554,6 +566,9 @@ class _SelectWaiter:
     def take_client_ready(self) -> list | None:
         return None  # unknown: read every device
 
+    def serve(self) -> None:
+        pass  # (the devices' own threads write)
+
 
 def run_daemon(
     rx: Receiver,
@@ -596,6 +611,90 @@ def run_daemon(
     return member.stats
 
 
+# A fleet's due receivers are simulated in chunks of at most this many: a chunk of a few
+# hundred keeps the vectorised tick's per-batch cost small against its per-receiver cost
+# (tools/bench_fleet.py: ~0.07 ms per receiver-epoch in open sky, a chunk of 256 ~20 ms), and
+# between chunks the devices' writers run, so no compute load holds their output back.
+CHUNK_RECEIVERS = 512
+# Of each period at most this share goes to computing epochs ahead of their time, and an epoch
+# may be computed up to LATE_SHARE of a period after it; the rest is the devices' and clients'.
+LEAD_SHARE = 0.5
+LATE_SHARE = 0.25
+# Thinning is reported once it drops more than this share of the epochs asked over a window.
+THIN_WARN_SHARE = 0.01
+THIN_WINDOW_S = 5.0
+
+
+def chunks_due(due: list[LiveReceiver], size: int = CHUNK_RECEIVERS) -> list[list[LiveReceiver]]:
+    """Split the receivers due into the batches one :func:`tick` simulates: those sharing a
+    :class:`~virtualgps.receiver.definition.Receiver` and an epoch time, in the fleet's order,
+    cut into pieces of at most ``size``. The pieces are the same from one epoch to the next
+    while the receivers due are, so each goes on from its last rows.
+
+    Returns
+    -------
+    chunks : lists of receivers, the longest-waiting first (the oldest last epoch: a chunk
+        thinned out at one epoch comes first at the next)
+    """
+    groups: dict[tuple[int, float], list[LiveReceiver]] = {}
+    for m in due:
+        groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(m)
+    chunks = [g[i:i + size] for g in groups.values() for i in range(0, len(g), size)]
+    never = -math.inf
+    chunks.sort(key=lambda c: never if c[0].t_last is None else c[0].t_last)
+    return chunks
+
+
+class Thinning:
+    """What the loop can compute per period, and the one warning when it cannot keep up.
+
+    Attributes
+    ----------
+    s_per_receiver : the recent cost of one receiver's epoch, seconds (a moving average)
+    asked, thinned : receiver-epochs due and left out since the window began
+    warned : whether the overload was reported
+    """
+
+    def __init__(self, n_receivers: int) -> None:
+        self.n_receivers = n_receivers
+        self.s_per_receiver = 0.0
+        self.asked = self.thinned = 0
+        self.window_start_s = time.monotonic()
+        self.warned = False
+
+    def measured(self, n: int, spent_s: float) -> None:
+        """A chunk of ``n`` receivers took ``spent_s`` seconds."""
+        per = spent_s / max(n, 1)
+        self.s_per_receiver = per if self.s_per_receiver == 0.0 else (
+            0.8 * self.s_per_receiver + 0.2 * per)
+
+    def fits(self, n: int, left_s: float) -> bool:
+        """Whether a chunk of ``n`` receivers is likely done within ``left_s`` seconds."""
+        return n * self.s_per_receiver <= left_s
+
+    def count(self, asked: int, thinned: int, rate_hz: float) -> None:
+        """One epoch's receivers due and left out; warns once when the window's share left out
+        is past THIN_WARN_SHARE."""
+        self.asked += asked
+        self.thinned += thinned
+        now = time.monotonic()
+        if now - self.window_start_s < THIN_WINDOW_S:
+            return
+        if not self.warned and self.thinned > THIN_WARN_SHARE * self.asked:
+            self.warned = True
+            share = 1.0 - self.thinned / self.asked
+            cores = os.cpu_count() or 1
+            log.warning(
+                "%d receivers at %g Hz need %.2f ms each per epoch, %.0f %% more than this "
+                "process has: epochs are thinned evenly, each receiver gets ~%.1f Hz (%.0f %% "
+                "of its epochs); use more worker processes (--workers, this machine has %d "
+                "cores), split the fleet across hosts (--ids), or lower --rate",
+                self.n_receivers, rate_hz, 1e3 * self.s_per_receiver,
+                100.0 * (1.0 / share - 1.0), share * rate_hz, 100.0 * share, cores)
+        self.asked = self.thinned = 0
+        self.window_start_s = now
+
+
 def run_receivers(
     members: list[LiveReceiver],
     provider: PoseProvider,
@@ -607,9 +706,14 @@ def run_receivers(
     until_unix_s: float | None = None,
 ) -> None:
     """The live loop of one or many receivers: each emits its epochs on whole multiples of its
-    period; receivers due at once are simulated together (:func:`epoch_skies`).
+    period; receivers due at once are simulated together, in chunks (:func:`chunks_due`).
 
-    Between epochs the loop reads poses and the clients' commands as they arrive.
+    Between epochs the loop reads poses and the clients' commands as they arrive; between
+    chunks the devices' writers run. An epoch is computed ahead of its time (by what the last
+    ones took, at most LEAD_SHARE of a period) and sent at its time. When the receivers due
+    cannot all be computed by LATE_SHARE of a period after it, the chunks left are *thinned*
+    out of that epoch (they go first at the next): under overload every receiver still gets
+    fresh epochs, at a lower rate, and every device is served (:class:`Thinning` warns once).
 
     Parameters
     ----------
@@ -621,9 +725,9 @@ def run_receivers(
     on_epoch : called after each receiver's epoch with the receiver, the Fixes of its batch
         and its row there
     max_epochs : stop once every receiver has emitted this many epochs (tests)
-    waiter : what the loop waits in: ``wait(deadline_s, fds)`` and ``take_client_ready()``
-        (a :class:`virtualgps.run.fleet.ptyloop.PtyLoop` serving the devices; default: ``select``
-        on the pose source and the devices' own descriptors)
+    waiter : what the loop waits in: ``wait(deadline_s, fds)``, ``take_client_ready()`` and
+        ``serve()`` (a :class:`virtualgps.run.fleet.ptyloop.PtyLoop` serving the devices;
+        default: ``select`` on the pose source and the devices' own descriptors)
     until_unix_s : simulated UTC, s: the loop ends before the first epoch due after it (so
         ``--duration S`` sends exactly the S × rate epochs due within S s, whatever the phase
         of the start within a second)
@@ -636,9 +740,20 @@ def run_receivers(
     stop_fileno = getattr(stop, "fileno", None)
     stop_fds = [stop_fileno()] if stop_fileno is not None else []
     max_wait_s = math.inf if stop_fds else 0.1
-    # An epoch is computed this long before its time and sent at its time: the last ticks'
-    # cost (a fleet of a thousand takes tens of milliseconds), so its first byte leaves on time.
-    lead_s = 0.0
+    thin = Thinning(len(members))
+    lead_s = 0.0  # how long before its time an epoch's computing starts
+
+    def send(batches, deadline: float) -> None:
+        lateness = time.monotonic() - deadline
+        for group, fixes, data in batches:
+            for b, m in enumerate(group):
+                if lateness > 0.5 / m.rate:
+                    m.stats.late_epochs += 1
+                m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
+                m.sent(data[b], bool(fixes.quality[b] > 0))
+                if on_epoch is not None:
+                    on_epoch(m, fixes, b)
+
     while not stop.is_set():
         # Wait for the next epoch due, reading poses and the clients' commands as they come.
         while not stop.is_set():
@@ -657,20 +772,29 @@ def run_receivers(
         if stop.is_set():
             break
         due = [m for m in members if m.t_next_unix_s <= t_due + 1e-9]
-        c0 = time.monotonic()
-        batches = tick(due, provider)
-        spent_s = time.monotonic() - c0
-        lead_s = min(1.25 * max(spent_s, 0.8 * lead_s) + 0.002, 0.5 / max(m.rate for m in due))
-        while time.monotonic() < deadline and not stop.is_set():
-            waiter.wait(deadline, stop_fds)  # (the devices' writers are served meanwhile)
-        lateness = time.monotonic() - deadline
-        for group, fixes, data in batches:
-            for b, m in enumerate(group):
-                if lateness > 0.5 / m.rate:
-                    m.stats.late_epochs += 1
-                m.stats.max_lateness_s = max(m.stats.max_lateness_s, lateness)
-                m.sent(data[b], bool(fixes.quality[b] > 0))
-                if on_epoch is not None:
-                    on_epoch(m, fixes, b)
+        period_s = 1.0 / max(m.rate for m in due)
+        give_up_unix_s = t_due + LATE_SHARE * period_s  # (on the simulated clock)
+        held, n_done = [], 0
+        for i, chunk in enumerate(chunks_due(due)):
+            if i > 0 and not thin.fits(len(chunk), give_up_unix_s - clock.now_unix_s()):
+                for m in chunk:
+                    m.skip()
+                continue
+            t0 = time.monotonic()
+            batches = tick(chunk, provider)
+            thin.measured(len(chunk), time.monotonic() - t0)
+            n_done += len(chunk)
+            if time.monotonic() >= deadline:  # (late: out at once, after any held)
+                send(held + batches, deadline)
+                held = []
+            else:
+                held += batches
+            waiter.serve()  # (the devices' writers, between chunks)
+        thin.count(len(due), len(due) - n_done, 1.0 / period_s)
+        lead_s = min(1.25 * thin.s_per_receiver * len(due) + 0.002, LEAD_SHARE * period_s)
+        if held:
+            while time.monotonic() < deadline and not stop.is_set():
+                waiter.wait(deadline, stop_fds)  # (the devices' writers are served meanwhile)
+            send(held, deadline)
         if max_epochs is not None and all(m.stats.epochs >= max_epochs for m in members):
             break

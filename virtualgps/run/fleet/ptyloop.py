@@ -7,7 +7,10 @@ PtyDevice.step` runs when its next slice is due (a heap of wake times), when a n
 queued for it, or when its master reports client bytes or a hang-up (epoll, level-triggered,
 watched only while a reader is attached). One stalled reader only ever delays its own device:
 a step never blocks, and a device whose client stopped reading is looked at again on its own
-schedule, apart from the rest.
+schedule, apart from the rest. Devices nobody has open are not stepped one by one: one
+``poll`` over all of them every ``_IDLE_POLL_S`` finds those a client opened (their queues
+trim themselves as epochs arrive), so ten thousand unopened devices cost one system call, not
+ten thousand, per look.
 
 The loop also waits on the caller's descriptors (the pose source), so the daemon's thread does
 all its waiting in one ``epoll_wait``.
@@ -22,6 +25,7 @@ import logging
 import select
 import time
 
+from virtualgps.device.output import _IDLE_POLL_S
 from virtualgps.device.pty import PtyDevice
 
 log = logging.getLogger(__name__)
@@ -49,6 +53,11 @@ class PtyLoop:
         self._extra: set[int] = set()
         self.client_ready: set[PtyDevice] = set()
         self.steps = 0
+        # Devices without a reader: watched together (POLLHUP holds while nobody has the slave
+        # open, and no event says it cleared), not stepped until one shows a reader.
+        self._idle: set[int] = set()
+        self._idle_poll = select.poll()
+        self._idle_check_s = 0.0
 
     def add(self, device: PtyDevice) -> None:
         """Take over ``device``'s writer (built with ``threaded=False``); it steps at once."""
@@ -60,7 +69,9 @@ class PtyLoop:
         self._kicked.add(fd)
 
     def _kick(self, device: PtyDevice) -> None:
-        self._kicked.add(device.master_fd)
+        fd = device.master_fd
+        if fd not in self._idle:  # (an idle device's new epoch waits in its queue)
+            self._kicked.add(fd)
 
     def _sync_extra(self, fds: list[int]) -> None:
         want = set(fds)
@@ -74,6 +85,10 @@ class PtyLoop:
     def _step(self, fd: int, now_s: float) -> None:
         dev = self._by_fd.get(fd)
         if dev is None or not dev.alive:
+            if fd in self._idle:
+                self._idle.discard(fd)
+                with contextlib.suppress(KeyError, ValueError):
+                    self._idle_poll.unregister(fd)
             return
         timeout_s = dev.step()
         self.steps += 1
@@ -85,6 +100,15 @@ class PtyLoop:
             else:
                 self._ep.unregister(fd)
             self._watching[fd] = dev.watch_master
+        if not dev.reader_attached and dev.alive:
+            if fd not in self._idle:
+                self._idle.add(fd)
+                self._idle_poll.register(fd, select.POLLIN)
+            self._due_s.pop(fd, None)
+            return
+        if fd in self._idle:
+            self._idle.discard(fd)
+            self._idle_poll.unregister(fd)
         due = now_s + timeout_s
         self._due_s[fd] = due
         heapq.heappush(self._heap, (due, next(self._tie), fd))
@@ -98,8 +122,17 @@ class PtyLoop:
             due, _, fd = heapq.heappop(self._heap)
             if self._due_s.get(fd) == due:  # (else a stale entry: the device stepped since)
                 fds.add(fd)
+        if self._idle and now_s >= self._idle_check_s:
+            self._idle_check_s = now_s + _IDLE_POLL_S
+            gone = select.POLLHUP | select.POLLNVAL
+            hung_up = {fd for fd, ev in self._idle_poll.poll(0) if ev & gone}
+            fds |= self._idle - hung_up  # (a reader came: step it)
         for fd in fds:
             self._step(fd, now_s)
+
+    def serve(self) -> None:
+        """Step the devices due now, without waiting (between a fleet's chunks of work)."""
+        self.run_due()
 
     def take_client_ready(self) -> list[PtyDevice]:
         """Return (and forget) the devices whose client bytes wait for ``read_available``."""
@@ -133,6 +166,8 @@ class PtyLoop:
             if now_s >= deadline_s:
                 return False
             next_s = self._heap[0][0] if self._heap else deadline_s
+            if self._idle:
+                next_s = min(next_s, self._idle_check_s)
             timeout_s = max(0.0, min(deadline_s, next_s) - now_s)
             if self._kicked:
                 timeout_s = 0.0
