@@ -393,8 +393,10 @@ def test_fleet_devices_match_single_runs_and_sigterm_removes_links(tmp_path):
     fleet_file.write_text('[[receiver]]\n[[receiver]]\n[[receiver]]\nprofile = "usarsim"\n'
                           "seed = 99\n")
     common = ["--start-time", START_ISO, "--rate", "10", "--seed", "4"]
+    # (over two worker processes: a receiver's bytes do not depend on its share)
     proc, links = start_fleet(tmp_path, "--fleet", str(fleet_file), "--poses", str(log),
-                              "--link", str(tmp_path / "gps{id}"), *common, n_lines=3)
+                              "--link", str(tmp_path / "gps{id}"), "--workers", "2", *common,
+                              n_lines=3)
     try:
         readers = [Reader(Path(ln)) for ln in links]
         for r in readers:

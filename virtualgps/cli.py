@@ -94,6 +94,13 @@ def build_parser() -> argparse.ArgumentParser:
                      "--seed + id); poses carry \"id\" (default 1)")
     run.add_argument("--fleet", help="TOML file listing the receivers (profile, seed, link, "
                      "baud, antenna offset of each; see docs/fleets.md)")
+    run.add_argument("--workers", type=int,
+                     help="worker processes a fleet is spread over, each computing and serving "
+                     "a share of its receivers (default: one per core, at most one per "
+                     "receiver)")
+    run.add_argument("--ids", metavar="LO-HI",
+                     help="run only the receivers with ids LO..HI: this host's share of a fleet "
+                     "split across hosts (each host given the same fleet and pose stream)")
     run.add_argument("--serial", help="drive this real serial port instead of a pty")
     run.add_argument("--baud", type=int, help="baud rate (default: the profile's, 38400)")
     run.add_argument("--duration", type=float, help="stop after this many seconds")
@@ -229,74 +236,107 @@ def _status_text(fixes, stats, device) -> str:
         fix = "3D fix"
     else:
         where, fix = "", "no fix"
-    dropped = _lost_epochs([device])
+    from virtualgps.run.fleet.run import lost_epochs
+
+    dropped = lost_epochs([device])
     extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
     return f"{t}Z  {fix}  sats {used} used / {seen} in view  {where}{extra}"
 
 
-def _lost_epochs(devices) -> int:
-    """Epochs the devices dropped that a client or a port should have had. (A pty nobody
-    opened drops what nobody reads, as it should: only devices that wrote, to a client or a
-    port, count, where a slow line or client lost epochs.)"""
-    return sum(getattr(d, "dropped_epochs", 0) for d in devices if getattr(d, "written_bytes", 0))
-
-
-def _fleet_status(receivers, last: dict) -> str:
-    n_fix = sum(1 for fix, _ in last.values() if fix)
-    epochs = sum(r.stats.epochs for r in receivers)
-    dropped = _lost_epochs([r.device for r in receivers])
-    t = max((t for _, t in last.values()), default=0.0)
-    extra = f"  ({dropped} unread epochs dropped)" if dropped else ""
-    return (f"{time.strftime('%H:%M:%S', time.gmtime(t))}Z  {len(receivers)} receivers, "
-            f"{n_fix} with a fix  {epochs} epochs{extra}")
+def _fleet_status(p) -> str:
+    """The status line of a fleet's :class:`~virtualgps.run.fleet.run.Progress`."""
+    extra = f"  ({p.dropped} unread epochs dropped)" if p.dropped else ""
+    return (f"{time.strftime('%H:%M:%S', time.gmtime(p.t_unix_s))}Z  {p.receivers} receivers, "
+            f"{p.with_fix} with a fix  {p.epochs} epochs{extra}")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from virtualgps.run import daemon
-    from virtualgps.run.fleet.run import build_fleet
+    from virtualgps.poses import posesource
+    from virtualgps.run import config, daemon
+    from virtualgps.run.fleet import limits, workers
+    from virtualgps.run.fleet.members import fleet_members, parse_ids, select_ids
+    from virtualgps.run.fleet.run import ProgressTracker, RunSummary, build_fleet, log_links
 
     if args.duration is not None and not args.duration > 0:  # (0 used to mean "for ever")
         raise VirtualGPSError(f"--duration must be positive seconds, got {args.duration:g}")
+    if args.workers is not None and args.workers < 1:
+        raise VirtualGPSError(f"--workers must be at least 1, not {args.workers}")
     # (Before the devices exist: a signal while a thousand are being made still removes them.)
     stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    fleet = build_fleet(_flags(args), args.poses, args.link, args.receivers, args.fleet,
-                        args.serial, args.topic)
+    flags = _flags(args)
+    cfg = config.resolve(flags)
+    everyone = fleet_members(args.receivers, args.fleet, cfg.seed, args.link)
+    members = everyone if args.ids is None else select_ids(everyone, parse_ids(args.ids))
+    fleet_ids = [m.receiver_id for m in everyone]
+    n_workers = 1 if args.serial else min(
+        len(members), args.workers or workers.default_workers(len(members)))
+    status = StatusLine(sys.stdout)
+    no_pose_by = time.monotonic() + NO_POSE_WARNING_S
+
+    def poses_line(source) -> str | None:
+        """Where live poses come from (logged once), or None for a log or the demo walk."""
+        if source is None:
+            return None
+        where = "standard input" if source.describe() == "-" else source.describe()
+        log.info('poses: %s, one JSON pose per message (e.g. {"t": UTC s, "x": .., "y": .., '
+                 '"z": ..} in the scene\'s metres, or "lat", "lon", "alt"); no fix before the '
+                 "first", where)
+        return where
+
+    def no_pose_yet(where: str | None, n_good: int) -> None:
+        nonlocal no_pose_by
+        if where is not None and time.monotonic() > no_pose_by:
+            no_pose_by = math.inf
+            if n_good == 0:
+                log.warning("no pose has arrived on %s in %g s: the receiver has no fix until "
+                            "one does (or try --poses demo)", where, NO_POSE_WARNING_S)
+
+    if n_workers > 1:
+        limits.check_ptys(len(members))
+        source = posesource.open_pose_source(args.poses)
+        where = poses_line(source)
+
+        def on_status(progress) -> None:
+            no_pose_yet(where, progress.n_good)
+            status.show(_fleet_status(progress))
+
+        try:
+            summary = workers.run_workers(
+                flags, args.poses, args.link, members, fleet_ids, args.topic, n_workers, stop,
+                cfg.start_time_unix_s, args.duration,
+                on_device=lambda slave, link: print(f"device: {slave} -> {link}", flush=True),
+                on_status=on_status, live_source=source)
+        finally:
+            status.end()
+            stop.close()
+        summary.log()
+        return 0
+
+    fleet = build_fleet(flags, args.poses, args.link, serial_port=args.serial, topic=args.topic,
+                        members=members, fleet_ids=fleet_ids)
     receivers = fleet.receivers
     for r, link in zip(receivers, fleet.links, strict=True):
         dev = r.device
         print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
               flush=True)
-    status = StatusLine(sys.stdout)
-    last_fixes: dict[int, Any] = {}
+    tracker = ProgressTracker(fleet)
     shown = [0.0]
-    source = getattr(fleet.provider, "source", None)  # a live stream (UDP, TCP, stdin)
-    where = None if source is None else (
-        "standard input" if source.describe() == "-" else source.describe())
-    if where is not None:
-        log.info('poses: %s, one JSON pose per message (e.g. {"t": UTC s, "x": .., "y": .., '
-                 '"z": ..} in the scene\'s metres, or "lat", "lon", "alt"); no fix before the '
-                 "first", where)
-    no_pose_by = time.monotonic() + NO_POSE_WARNING_S
+    where = poses_line(getattr(fleet.provider, "source", None))  # a live stream
 
     def on_epoch(r, fixes, row) -> None:
-        nonlocal no_pose_by
-        if where is not None and time.monotonic() > no_pose_by:
-            no_pose_by = math.inf
-            if fleet.provider.n_good == 0:
-                log.warning("no pose has arrived on %s in %g s: the receiver has no fix until "
-                            "one does (or try --poses demo)", where, NO_POSE_WARNING_S)
+        no_pose_yet(where, fleet.provider.n_good if where is not None else 0)
         if not status.active:
             return
         if len(receivers) == 1:
             status.show(_status_text(fixes, r.stats, r.device))
             return
-        last_fixes[r.receiver_id] = bool(fixes.quality[row] > 0), float(fixes.t_unix_s[row])
+        tracker.on_epoch(r, fixes, row)
         now = time.monotonic()
         if now - shown[0] >= 1.0:  # a fleet's line: once a second
             shown[0] = now
-            status.show(_fleet_status(receivers, last_fixes))
+            status.show(_fleet_status(tracker.now()))
 
     try:
         # --duration counts simulated seconds from here, not a wall-clock timer: a timer
@@ -308,30 +348,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.end()
         fleet.close()
         stop.close()
-    for r in receivers:
-        link = r.stats.link
-        if link is not None and (link.commands or link.bad_checksum):
-            log.info(
-                "receiver %d: %s command link: %d commands answered, %d with a wrong checksum "
-                "ignored; settings at exit: %s",
-                r.receiver_id, link.protocol, link.commands, link.bad_checksum, link.summary(),
-            )
-    provider = fleet.provider
-    bad = getattr(provider, "bad", None)
-    unknown = getattr(provider, "unknown_ids", None)
-    s = [r.stats for r in receivers]
-    dropped = _lost_epochs([r.device for r in receivers])
-    log.info(
-        "stopped after %d epochs (%d with a fix, %d late, %d skipped%s)%s%s",
-        sum(x.epochs for x in s),
-        sum(x.fixes for x in s),
-        sum(x.late_epochs for x in s),
-        sum(x.skipped_epochs for x in s),
-        f", {dropped} dropped unread" if dropped else "",
-        f"; malformed pose messages: {dict(bad)}" if bad else "",
-        f"; pose messages for unknown receivers: {sum(unknown.values())} "
-        f"(ids {sorted(unknown)[:10]})" if unknown else "",
-    )
+    log_links(receivers)
+    RunSummary.of(fleet).log()
     return 0
 
 

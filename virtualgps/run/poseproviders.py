@@ -47,6 +47,13 @@ class SimClock:
         base = self._wall0 if self.start_unix_s is None else self.start_unix_s
         return base + (time.monotonic() - self._mono0)
 
+    @property
+    def anchor(self) -> tuple[float, float]:
+        """(monotonic, wall-clock) seconds at which this clock started: a clock made with them,
+        ``SimClock(start_unix_s, *anchor)``, reads the same time in any process of the machine
+        (the monotonic clock is the system's)."""
+        return self._mono0, self._wall0
+
     def monotonic_at(self, t_unix_s: float) -> float:
         """The monotonic-clock time at which the simulated clock reads ``t_unix_s``."""
         base = self._wall0 if self.start_unix_s is None else self.start_unix_s

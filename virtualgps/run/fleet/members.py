@@ -35,7 +35,6 @@ from virtualgps.tomlfile import read_toml
 ID_FIELD = "{id}"
 _KEYS = {"id", "profile", "seed", "link", "baud", "antenna_offset_m"}
 _DEFAULT_KEYS = {"profile", "baud", "antenna_offset_m"}
-MAX_RECEIVERS = 4096  # ptys: Linux allows 4096 by default (/proc/sys/kernel/pty/max)
 
 
 @dataclass(frozen=True)
@@ -85,8 +84,10 @@ def fleet_members(
         naming the file and the receiver, for unknown keys, bad values, repeated ids or links,
         or a count that disagrees with ``--receivers``.
     """
-    if n_receivers is not None and not 1 <= n_receivers <= MAX_RECEIVERS:
-        raise ConfigError(f"--receivers must be 1..{MAX_RECEIVERS}, not {n_receivers}")
+    # (No cap here: what bounds a fleet is the system's, see virtualgps.run.fleet.limits.)
+    if n_receivers is not None and not 1 <= n_receivers <= MAX_RECEIVER_ID + 1:
+        raise ConfigError(f"--receivers must be 1..{MAX_RECEIVER_ID + 1} (receiver ids are "
+                          f"0..{MAX_RECEIVER_ID}), not {n_receivers}")
     if fleet_file is None:
         n = n_receivers or 1
         entries: list[dict] = [{"id": i} for i in range(n)]
@@ -113,8 +114,6 @@ def fleet_members(
         if n_receivers is not None and n_receivers != len(entries):
             raise ConfigError(f"--receivers {n_receivers} but {where} lists {len(entries)} "
                               "receivers (give one or the other)")
-        if len(entries) > MAX_RECEIVERS:
-            raise ConfigError(f"{where}: at most {MAX_RECEIVERS} receivers")
     members = [_member(i, {**defaults, **e}, seed, link_pattern, where)
                for i, e in enumerate(entries)]
     ids = [m.receiver_id for m in members]
@@ -129,6 +128,37 @@ def fleet_members(
         dup = next(x for x in links if links.count(x) > 1)
         raise ConfigError(f"{where}: two receivers have the link {dup}")
     return members
+
+
+def parse_ids(text: str) -> tuple[int, int]:
+    """``--ids LO-HI`` (or one id ``N``): the inclusive range of receiver ids this host runs.
+
+    Raises
+    ------
+    ConfigError
+        for anything but ``N`` or ``LO-HI`` with 0 <= LO <= HI.
+    """
+    lo, sep, hi = text.strip().partition("-")
+    try:
+        a = int(lo)
+        b = int(hi) if sep else a
+    except ValueError:
+        a = b = -1
+    if not 0 <= a <= b:
+        raise ConfigError(f"--ids must be LO-HI receiver ids (e.g. 0-4999), not {text!r}")
+    return a, b
+
+
+def select_ids(members: list[Member], ids: tuple[int, int]) -> list[Member]:
+    """The members whose id lies in ``ids`` (inclusive): this host's share of a fleet split
+    across hosts. Raises ConfigError when none does."""
+    lo, hi = ids
+    mine = [m for m in members if lo <= m.receiver_id <= hi]
+    if not mine:
+        all_ids = [m.receiver_id for m in members]
+        raise ConfigError(f"--ids {lo}-{hi} selects none of the fleet's receivers (ids "
+                          f"{min(all_ids)}..{max(all_ids)})")
+    return mine
 
 
 def _member(index: int, e: dict, seed: int, link_pattern: str, where: str) -> Member:

@@ -9,7 +9,9 @@ together.
 
 from __future__ import annotations
 
+import errno
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,7 @@ from virtualgps.exceptions import ConfigError
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import posesource
 from virtualgps.run import config, daemon, poseproviders
+from virtualgps.run.fleet.limits import check_limits, pty_error
 from virtualgps.run.fleet.members import Member, fleet_members
 from virtualgps.run.fleet.ptyloop import PtyLoop
 
@@ -31,6 +34,8 @@ log = logging.getLogger(__name__)
 # epoch and device at 10 Hz instead of a USB adapter's 16 ms slices, which a thousand devices
 # could not afford. A single receiver keeps the 16 ms slices.
 FLEET_CHUNK_S = 0.1
+# A fleet larger than this logs its clients' coming and going at debug level only.
+QUIET_CLIENTS_ABOVE = 16
 
 
 @dataclass
@@ -73,8 +78,14 @@ def build_fleet(
     fleet_file: str | None = None,
     serial_port: str | None = None,
     topic: str | None = None,
+    *,
+    members: list[Member] | None = None,
+    fleet_ids: list[int] | None = None,
+    pose_source=None,
+    start_clock: Callable[[list, float | None], poseproviders.SimClock] | None = None,
 ) -> Fleet:
-    """Make the receivers, their devices and the pose source of ``virtualgps run``.
+    """Make the receivers, their devices and the pose source of ``virtualgps run`` (or of
+    one worker process's share of a fleet: ``members``).
 
     Parameters
     ----------
@@ -85,6 +96,14 @@ def build_fleet(
     fleet_file : ``--fleet``
     serial_port : ``--serial`` (one receiver only)
     topic : ``--topic`` for a ROS bag
+    members : the receivers to make (default: from ``n_receivers`` and ``fleet_file``)
+    fleet_ids : the ids of the whole fleet (default: the members'), where the demo walk
+        spreads them out, so a receiver walks the same in any share of its fleet
+    pose_source : the live pose source to read (default: ``--poses`` opened here; a worker
+        reads what its parent forwards)
+    start_clock : called with the devices once they exist and ``--start-time`` (or None),
+        returns the simulated clock (default: started there; a worker's starts when its parent
+        says, with all the others')
 
     Returns
     -------
@@ -96,7 +115,9 @@ def build_fleet(
         with one line for bad settings or inputs.
     """
     cfg = config.resolve(flags)
-    members = fleet_members(n_receivers, fleet_file, cfg.seed, link_pattern)
+    if members is None:
+        members = fleet_members(n_receivers, fleet_file, cfg.seed, link_pattern)
+    check_limits(len(members), serial_port is None)
     if serial_port and len(members) > 1:
         raise ConfigError("--serial drives one receiver; a fleet gets ptys (--link PATTERN)")
     scene, georef, scene_tle = config.load_scene_for(cfg)
@@ -104,9 +125,11 @@ def build_fleet(
     ephemeris, tle_path = config.load_ephemeris(
         cfg, scene_tle, poseproviders.SimClock(t_start).now_unix_s())
     prof = cfg.profile
-    log.info("profile %s (%s), scene %s, seed %d, rate %g Hz, baud %d, %d receiver%s",
+    share = ("" if fleet_ids is None or len(fleet_ids) == len(members)
+             else f" (this process's share of {len(fleet_ids)})")
+    log.info("profile %s (%s), scene %s, seed %d, rate %g Hz, baud %d, %d receiver%s%s",
              prof.name, prof.source, cfg.scene or config.DEFAULT_SCENE, cfg.seed,
-             prof.rate_hz, prof.baud, len(members), "s" if len(members) > 1 else "")
+             prof.rate_hz, prof.baud, len(members), "s" if len(members) > 1 else "", share)
 
     spec = poses_spec
     ids = [m.receiver_id for m in members]
@@ -153,16 +176,26 @@ def build_fleet(
                 devices.append(SerialDevice(serial_port, p.baud))
             else:
                 pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
-                waiter.add(PtyDevice(Path(m.link), baud=p.baud, threaded=False,
-                                               **pacing))
+                try:
+                    dev = PtyDevice(Path(m.link), baud=p.baud, threaded=False, **pacing)
+                except OSError as exc:
+                    if exc.errno not in (errno.EMFILE, errno.ENFILE, errno.ENOSPC):
+                        raise
+                    raise pty_error(exc, len(waiter.devices), len(members)) from exc
+                if len(fleet_ids or members) > QUIET_CLIENTS_ABOVE:
+                    dev.client_log_level = logging.DEBUG
+                waiter.add(dev)
         # The simulated clock starts once everything is loaded and made: with --start-time,
         # the first epoch is the first on the grid after it, however long the set-up took.
-        clock = poseproviders.SimClock(t_start)
+        made = devices if serial_port else waiter.devices
+        clock = (poseproviders.SimClock(t_start) if start_clock is None
+                 else start_clock(made, t_start))
         t0 = clock.now_unix_s()
         # Logs and the demo walk start at --start-time exactly (else now): a receiver's poses
         # are then the same in every run that starts there, to the bit.
-        provider = _provider(spec, tracks, members, scene, georef, prof.pose_timeout_s, clock,
-                             t0 if t_start is None else t_start)
+        provider = _provider(spec, tracks, ids if fleet_ids is None else fleet_ids, scene,
+                             georef, prof.pose_timeout_s, clock,
+                             t0 if t_start is None else t_start, pose_source)
         for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
             key = (m.profile, m.baud)
             receivers.append(daemon.LiveReceiver(
@@ -181,10 +214,12 @@ def build_fleet(
     return Fleet(receivers, provider, waiter, devices, clock, str(tle_path), links)
 
 
-def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s: float,
-              clock: poseproviders.SimClock, t0: float) -> poseproviders.PoseProvider:
-    """The pose source of ``--poses`` for these receivers."""
-    ids = [m.receiver_id for m in members]
+def _provider(spec: str, tracks, fleet_ids: list[int], scene, georef, max_gap_s: float,
+              clock: poseproviders.SimClock, t0: float,
+              pose_source=None) -> poseproviders.PoseProvider:
+    """The pose source of ``--poses`` for the receivers of a fleet (``fleet_ids``: all of them,
+    where the demo walk spreads them; a provider answers for any of them)."""
+    ids = fleet_ids
     if spec == "demo":
         waypoints = getattr(scene, "demo_waypoints_enu_m", None) if scene is not None else None
         speed = getattr(scene, "demo_speed_mps", 1.4) if scene is not None else 1.4
@@ -198,8 +233,8 @@ def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s
             rid: poseproviders.LoopProvider(lap, t0 - j * lap_s / len(ids), max_gap_s)
             for j, rid in enumerate(ids)})
     if spec.startswith(("udp://", "tcp://")) or spec == "-":
-        return poseproviders.LiveProvider(posesource.open_pose_source(spec), georef, clock,
-                                          max_gap_s, receiver_ids=ids)
+        source = posesource.open_pose_source(spec) if pose_source is None else pose_source
+        return poseproviders.LiveProvider(source, georef, clock, max_gap_s, receiver_ids=ids)
     from virtualgps.run.replay import track_in_scene
 
     # A fleet's log keeps its receivers' timing: all are replayed from the earliest pose.
@@ -208,3 +243,125 @@ def _provider(spec: str, tracks, members: list[Member], scene, georef, max_gap_s
     return poseproviders.ReceiverPoses({
         rid: poseproviders.TrackProvider(tr, t0, max_gap_s, t_first)
         for rid, tr in scene_tracks.items()})
+
+
+def lost_epochs(devices) -> int:
+    """Epochs the devices dropped that a client or a port should have had. (A pty nobody
+    opened drops what nobody reads, as it should: only devices that wrote, to a client or a
+    port, count, where a slow line or client lost epochs.)"""
+    return sum(getattr(d, "dropped_epochs", 0) for d in devices if getattr(d, "written_bytes", 0))
+
+
+@dataclass
+class RunSummary:
+    """What a run (or one worker's share of it) did: the counts of its exit line.
+
+    epochs, fixes, late, skipped, thinned : receiver-epochs sent, with a fix, sent late,
+        skipped (fell behind), thinned out (see :class:`virtualgps.run.daemon.Thinning`)
+    dropped : epochs dropped unread on devices a client read
+    bad : malformed pose messages by kind; unknown : pose messages by unknown receiver id
+    n_good : good pose messages
+    """
+
+    epochs: int = 0
+    fixes: int = 0
+    late: int = 0
+    skipped: int = 0
+    thinned: int = 0
+    dropped: int = 0
+    bad: dict | None = None
+    unknown: dict | None = None
+    n_good: int = 0
+
+    @classmethod
+    def of(cls, fleet: Fleet) -> RunSummary:
+        """The counts of a fleet's receivers, devices and pose source now."""
+        s = [r.stats for r in fleet.receivers]
+        provider = fleet.provider
+        return cls(
+            epochs=sum(x.epochs for x in s), fixes=sum(x.fixes for x in s),
+            late=sum(x.late_epochs for x in s), skipped=sum(x.skipped_epochs for x in s),
+            thinned=sum(x.thinned_epochs for x in s),
+            dropped=lost_epochs([r.device for r in fleet.receivers]),
+            bad=dict(getattr(provider, "bad", None) or {}),
+            unknown=dict(getattr(provider, "unknown_ids", None) or {}),
+            n_good=getattr(provider, "n_good", 0))
+
+    def __add__(self, other: RunSummary) -> RunSummary:
+        def merged(a, b):
+            out = dict(a or {})
+            for k, v in (b or {}).items():
+                out[k] = out.get(k, 0) + v
+            return out
+
+        return RunSummary(
+            self.epochs + other.epochs, self.fixes + other.fixes, self.late + other.late,
+            self.skipped + other.skipped, self.thinned + other.thinned,
+            self.dropped + other.dropped, merged(self.bad, other.bad),
+            merged(self.unknown, other.unknown), self.n_good + other.n_good)
+
+    def log(self) -> None:
+        """The run's exit line."""
+        unknown = self.unknown or {}
+        log.info(
+            "stopped after %d epochs (%d with a fix, %d late, %d skipped%s%s)%s%s",
+            self.epochs, self.fixes, self.late, self.skipped,
+            f", {self.thinned} thinned out to keep up" if self.thinned else "",
+            f", {self.dropped} dropped unread" if self.dropped else "",
+            f"; malformed pose messages: {self.bad}" if self.bad else "",
+            f"; pose messages for unknown receivers: {sum(unknown.values())} "
+            f"(ids {sorted(unknown)[:10]})" if unknown else "",
+        )
+
+
+def log_links(receivers: list[daemon.LiveReceiver]) -> None:
+    """One line per receiver whose client used its command link: what it set."""
+    for r in receivers:
+        link = r.stats.link
+        if link is not None and (link.commands or link.bad_checksum):
+            log.info(
+                "receiver %d: %s command link: %d commands answered, %d with a wrong checksum "
+                "ignored; settings at exit: %s",
+                r.receiver_id, link.protocol, link.commands, link.bad_checksum, link.summary(),
+            )
+
+
+@dataclass
+class Progress:
+    """A fleet's state for its status line: receivers with a fix at their last epoch, epochs
+    sent, epochs dropped unread, the newest epoch's time, good pose messages.
+
+    Parts of one fleet (its workers') add up (``+``).
+    """
+
+    receivers: int = 0
+    with_fix: int = 0
+    epochs: int = 0
+    dropped: int = 0
+    t_unix_s: float = 0.0
+    n_good: int = 0
+
+    def __add__(self, other: Progress) -> Progress:
+        return Progress(self.receivers + other.receivers, self.with_fix + other.with_fix,
+                        self.epochs + other.epochs, self.dropped + other.dropped,
+                        max(self.t_unix_s, other.t_unix_s), self.n_good + other.n_good)
+
+
+class ProgressTracker:
+    """Follows a fleet's epochs (:meth:`on_epoch`, the loop's callback) for :class:`Progress`."""
+
+    def __init__(self, fleet: Fleet) -> None:
+        self.fleet = fleet
+        self._last: dict[int, tuple[bool, float]] = {}
+
+    def on_epoch(self, r: daemon.LiveReceiver, fixes, row: int) -> None:
+        self._last[r.receiver_id] = bool(fixes.quality[row] > 0), float(fixes.t_unix_s[row])
+
+    def now(self) -> Progress:
+        """The fleet's progress now."""
+        rs = self.fleet.receivers
+        return Progress(
+            len(rs), sum(1 for fix, _ in self._last.values() if fix),
+            sum(r.stats.epochs for r in rs), lost_epochs([r.device for r in rs]),
+            max((t for _, t in self._last.values()), default=0.0),
+            getattr(self.fleet.provider, "n_good", 0))
