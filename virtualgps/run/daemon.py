@@ -487,25 +487,33 @@ def tick(
             rows = ReceiverRows.stack([m.state for m in group], [m.rng for m in group],
                                       rx.profile, group[0].n_sat)
         fixes, rows = simulate(rx, np.full(n, t_epoch), pos, vel, valid, rows, None, sky=sky)
+        # (one pass over the receivers: a fleet's per-receiver Python is a cost of its own)
+        by_fmt: dict[int, tuple[nmea.NmeaFormat, list[int]]] = {}  # (by the format object)
+        ubx: list[int] = []
+        prof = rx.profile
         for b, m in enumerate(group):
-            m._row = (rows, b, rx.profile)
-        by_fmt: dict[nmea.NmeaFormat, list[int]] = {}
-        for b, m in enumerate(group):
-            if m.out_fmt is not None:
-                by_fmt.setdefault(m.out_fmt, []).append(b)
+            m._row = (rows, b, prof)
+            fmt = m.out_fmt
+            if fmt is not None:
+                entry = by_fmt.get(id(fmt))
+                if entry is None:
+                    by_fmt[id(fmt)] = entry = (fmt, [])
+                entry[1].append(b)
+            if isinstance(m.link, UbxLink):
+                ubx.append(b)
         data: list[bytes | None] = [None] * n
-        for fmt, idx in by_fmt.items():
+        for fmt, idx in by_fmt.values():
             if len(idx) == n:
                 data = list(nmea.render_batch(fixes, fmt))
             else:
                 for b in idx:
                     data[b] = nmea.epoch_sentences(fixes, b, fmt)
         sol = None
-        for b, m in enumerate(group):
-            if isinstance(m.link, UbxLink):  # (its UBX around the NMEA, at the link's rates)
-                if sol is None:
-                    sol = ubx_messages.solution(fixes, m.link.uere_m)
-                data[b] = m.link.output(fixes, b, m.stats.epochs, data[b] or b"", sol) or None
+        for b in ubx:  # (its UBX around the NMEA, at the link's rates)
+            m = group[b]
+            if sol is None:
+                sol = ubx_messages.solution(fixes, m.link.uere_m)
+            data[b] = m.link.output(fixes, b, m.stats.epochs, data[b] or b"", sol) or None
         out.append((group, fixes, data))
     return out
 
@@ -611,15 +619,18 @@ def run_daemon(
     return member.stats
 
 
-# A fleet's due receivers are simulated in chunks of at most this many: a chunk of a few
-# hundred keeps the vectorised tick's per-batch cost small against its per-receiver cost
-# (tools/bench_fleet.py: ~0.07 ms per receiver-epoch in open sky, a chunk of 256 ~20 ms), and
-# between chunks the devices' writers run, so no compute load holds their output back.
-CHUNK_RECEIVERS = 512
+# A fleet's due receivers are simulated in chunks of about CHUNK_S of work each, a power of two
+# of receivers between the bounds (Thinning.chunk): large enough that a tick's per-batch cost
+# (~3 ms) is small against its per-receiver cost (~0.05 ms in open sky, ~0.1 ms in the campus;
+# a chunk of 32 costs 0.19 ms a receiver, one of 1024 0.05 ms), small enough that the devices'
+# writers, run between chunks, are never held back long by the compute.
+CHUNK_S = 0.04
+CHUNK_RECEIVERS = 512  # (to start with)
+CHUNK_BOUNDS = (64, 4096)
 # Of each period at most this share goes to computing epochs ahead of their time, and an epoch
 # may be computed up to LATE_SHARE of a period after it; the rest is the devices' and clients'.
-LEAD_SHARE = 0.5
-LATE_SHARE = 0.25
+LEAD_SHARE = 0.7
+LATE_SHARE = 0.15
 # Thinning is reported once it drops more than this share of the epochs asked over a window.
 THIN_WARN_SHARE = 0.01
 THIN_WINDOW_S = 5.0
@@ -651,6 +662,7 @@ class Thinning:
     Attributes
     ----------
     s_per_receiver : the recent cost of one receiver's epoch, seconds (a moving average)
+    chunk : receivers per chunk now (see CHUNK_S)
     asked, thinned : receiver-epochs due and left out since the window began
     warned : whether the overload was reported
     """
@@ -661,12 +673,22 @@ class Thinning:
         self.asked = self.thinned = 0
         self.window_start_s = time.monotonic()
         self.warned = False
+        self.chunk = CHUNK_RECEIVERS
 
     def measured(self, n: int, spent_s: float) -> None:
-        """A chunk of ``n`` receivers took ``spent_s`` seconds."""
+        """A chunk of ``n`` receivers took ``spent_s`` seconds: the cost per receiver, and the
+        chunk size that takes about CHUNK_S (halved or doubled only when 1.5 times off, so the
+        chunks, and the rows each goes on from, stay the same from one epoch to the next)."""
         per = spent_s / max(n, 1)
         self.s_per_receiver = per if self.s_per_receiver == 0.0 else (
             0.8 * self.s_per_receiver + 0.2 * per)
+        if n < self.chunk:
+            return  # (a short chunk, the last of its group, says little about the size)
+        ideal = CHUNK_S / max(self.s_per_receiver, 1e-9)
+        if ideal > 1.5 * self.chunk and self.chunk < CHUNK_BOUNDS[1]:
+            self.chunk *= 2
+        elif ideal < self.chunk / 1.5 and self.chunk > CHUNK_BOUNDS[0]:
+            self.chunk //= 2
 
     def fits(self, n: int, left_s: float) -> bool:
         """Whether a chunk of ``n`` receivers is likely done within ``left_s`` seconds."""
@@ -775,7 +797,7 @@ def run_receivers(
         period_s = 1.0 / max(m.rate for m in due)
         give_up_unix_s = t_due + LATE_SHARE * period_s  # (on the simulated clock)
         held, n_done = [], 0
-        for i, chunk in enumerate(chunks_due(due)):
+        for i, chunk in enumerate(chunks_due(due, thin.chunk)):
             if i > 0 and not thin.fits(len(chunk), give_up_unix_s - clock.now_unix_s()):
                 for m in chunk:
                     m.skip()

@@ -50,6 +50,7 @@ class PtyLoop:
         self._heap: list[tuple[float, int, int]] = []  # (due, tie-break, master fd), lazily
         self._tie = itertools.count()
         self._kicked: set[int] = set()
+        self._events: set[int] = set()  # masters epoll reported since their last step
         self._extra: set[int] = set()
         self.client_ready: set[PtyDevice] = set()
         self.steps = 0
@@ -82,7 +83,7 @@ class PtyLoop:
             self._ep.register(fd, select.EPOLLIN)
         self._extra = want
 
-    def _step(self, fd: int, now_s: float) -> None:
+    def _step(self, fd: int, now_s: float, master_quiet: bool = False) -> None:
         dev = self._by_fd.get(fd)
         if dev is None or not dev.alive:
             if fd in self._idle:
@@ -90,7 +91,7 @@ class PtyLoop:
                 with contextlib.suppress(KeyError, ValueError):
                     self._idle_poll.unregister(fd)
             return
-        timeout_s = dev.step()
+        timeout_s = dev.step(master_quiet and self._watching[fd])
         self.steps += 1
         if dev.client_bytes_waiting:
             self.client_ready.add(dev)
@@ -127,8 +128,9 @@ class PtyLoop:
             gone = select.POLLHUP | select.POLLNVAL
             hung_up = {fd for fd, ev in self._idle_poll.poll(0) if ev & gone}
             fds |= self._idle - hung_up  # (a reader came: step it)
+        events, self._events = self._events, set()
         for fd in fds:
-            self._step(fd, now_s)
+            self._step(fd, now_s, fd not in events)
 
     def serve(self) -> None:
         """Step the devices due now, without waiting (between a fleet's chunks of work)."""
@@ -175,6 +177,7 @@ class PtyLoop:
             for fd, _ in self._ep.poll(timeout_s):
                 if fd in self._by_fd:
                     self._kicked.add(fd)
+                    self._events.add(fd)  # (its step looks at the master)
                 else:
                     extra = True
             if extra:
