@@ -167,10 +167,12 @@ class LiveProvider:
     clock : the simulated clock (robot-clock times -> simulated times)
     max_gap_s : the pose timeout
     receiver_ids : the receivers that exist (default: receiver 0 alone)
+    elsewhere_ids : receivers of the fleet that other hosts run (``--ids``): their messages
+        are skipped and counted (``elsewhere``), not taken for unknown receivers
     """
 
     def __init__(self, source, georef: Georef, clock: SimClock, max_gap_s: float,
-                 receiver_ids: Iterable[int] = (0,)) -> None:
+                 receiver_ids: Iterable[int] = (0,), elsewhere_ids: Iterable[int] = ()) -> None:
         self.source = source
         self.georef = georef
         self.clock = clock
@@ -179,6 +181,8 @@ class LiveProvider:
             int(i): deque(maxlen=LIVE_POSE_HISTORY) for i in receiver_ids}
         self.bad: Counter[str] = Counter()
         self.unknown_ids: Counter[int] = Counter()
+        self.elsewhere_ids = frozenset(int(i) for i in elsewhere_ids)
+        self.elsewhere = 0
         self.n_good = 0
         self._tracks: dict[int, pose.PoseTrack] = {}
 
@@ -209,6 +213,9 @@ class LiveProvider:
                 p = pose.parse_pose_message(data, arrival_wall_s)
                 history = self.histories.get(p.receiver_id)
                 if history is None:
+                    if p.receiver_id in self.elsewhere_ids:
+                        self.elsewhere += 1
+                        continue
                     if not self.unknown_ids:
                         log.warning("skipping a pose message for receiver %d, which does not "
                                     "exist (further ones are counted, not logged)", p.receiver_id)

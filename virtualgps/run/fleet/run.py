@@ -160,7 +160,7 @@ def build_fleet(
     rxs = {key: config.make_receiver(c, scene, georef, ephemeris, t_guess)
            for key, c in cfgs.items()}
     fmts = {key: nmea.NmeaFormat.from_dict(c.profile.nmea) for key, c in cfgs.items()}
-    unknown = sorted(set(tracks or ()) - set(ids))
+    unknown = sorted(set(tracks or ()) - set(ids if fleet_ids is None else fleet_ids))
     if unknown:
         log.warning("%s has poses for receivers %s, which this run does not have: ignored",
                     spec, ", ".join(map(str, unknown[:10])) + (" ..." if len(unknown) > 10 else ""))
@@ -193,8 +193,8 @@ def build_fleet(
         t0 = clock.now_unix_s()
         # Logs and the demo walk start at --start-time exactly (else now): a receiver's poses
         # are then the same in every run that starts there, to the bit.
-        provider = _provider(spec, tracks, ids if fleet_ids is None else fleet_ids, scene,
-                             georef, prof.pose_timeout_s, clock,
+        provider = _provider(spec, tracks, ids, ids if fleet_ids is None else fleet_ids,
+                             scene, georef, prof.pose_timeout_s, clock,
                              t0 if t_start is None else t_start, pose_source)
         for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
             key = (m.profile, m.baud)
@@ -214,12 +214,12 @@ def build_fleet(
     return Fleet(receivers, provider, waiter, devices, clock, str(tle_path), links)
 
 
-def _provider(spec: str, tracks, fleet_ids: list[int], scene, georef, max_gap_s: float,
-              clock: poseproviders.SimClock, t0: float,
+def _provider(spec: str, tracks, ids: list[int], fleet_ids: list[int], scene, georef,
+              max_gap_s: float, clock: poseproviders.SimClock, t0: float,
               pose_source=None) -> poseproviders.PoseProvider:
-    """The pose source of ``--poses`` for the receivers of a fleet (``fleet_ids``: all of them,
-    where the demo walk spreads them; a provider answers for any of them)."""
-    ids = fleet_ids
+    """The pose source of ``--poses`` for receivers ``ids`` of a fleet of ``fleet_ids`` (the
+    demo walk spreads the whole fleet, a log keeps the whole fleet's timing: a receiver's
+    poses do not depend on which share of the fleet it runs in)."""
     if spec == "demo":
         waypoints = getattr(scene, "demo_waypoints_enu_m", None) if scene is not None else None
         speed = getattr(scene, "demo_speed_mps", 1.4) if scene is not None else 1.4
@@ -229,20 +229,24 @@ def _provider(spec: str, tracks, fleet_ids: list[int], scene, georef, max_gap_s:
         lap = poseproviders.demo_lap(np.asarray(waypoints, float), float(speed))
         lap_s = float(lap.t_unix_s[-1])
         # A fleet spreads out along the loop: receiver j of n starts j / n of a lap ahead.
+        mine = set(ids)
         return poseproviders.ReceiverPoses({
-            rid: poseproviders.LoopProvider(lap, t0 - j * lap_s / len(ids), max_gap_s)
-            for j, rid in enumerate(ids)})
+            rid: poseproviders.LoopProvider(lap, t0 - j * lap_s / len(fleet_ids), max_gap_s)
+            for j, rid in enumerate(fleet_ids) if rid in mine})
     if spec.startswith(("udp://", "tcp://")) or spec == "-":
         source = posesource.open_pose_source(spec) if pose_source is None else pose_source
-        return poseproviders.LiveProvider(source, georef, clock, max_gap_s, receiver_ids=ids)
+        return poseproviders.LiveProvider(source, georef, clock, max_gap_s, receiver_ids=ids,
+                                          elsewhere_ids=set(fleet_ids) - set(ids))
     from virtualgps.run.replay import track_in_scene
 
     # A fleet's log keeps its receivers' timing: all are replayed from the earliest pose.
-    scene_tracks = {rid: track_in_scene(tr, georef) for rid, tr in tracks.items() if rid in ids}
-    t_first = min((float(tr.t_unix_s[0]) for tr in scene_tracks.values()), default=0.0)
+    in_fleet = set(fleet_ids)
+    t_first = min((float(tr.t_unix_s[0]) for rid, tr in tracks.items() if rid in in_fleet),
+                  default=0.0)
+    mine = set(ids)
     return poseproviders.ReceiverPoses({
-        rid: poseproviders.TrackProvider(tr, t0, max_gap_s, t_first)
-        for rid, tr in scene_tracks.items()})
+        rid: poseproviders.TrackProvider(track_in_scene(tr, georef), t0, max_gap_s, t_first)
+        for rid, tr in tracks.items() if rid in mine})
 
 
 def lost_epochs(devices) -> int:
@@ -260,7 +264,7 @@ class RunSummary:
         skipped (fell behind), thinned out (see :class:`virtualgps.run.daemon.Thinning`)
     dropped : epochs dropped unread on devices a client read
     bad : malformed pose messages by kind; unknown : pose messages by unknown receiver id
-    n_good : good pose messages
+    n_good : good pose messages; elsewhere : messages for receivers other hosts run (--ids)
     """
 
     epochs: int = 0
@@ -272,6 +276,7 @@ class RunSummary:
     bad: dict | None = None
     unknown: dict | None = None
     n_good: int = 0
+    elsewhere: int = 0
 
     @classmethod
     def of(cls, fleet: Fleet) -> RunSummary:
@@ -285,7 +290,7 @@ class RunSummary:
             dropped=lost_epochs([r.device for r in fleet.receivers]),
             bad=dict(getattr(provider, "bad", None) or {}),
             unknown=dict(getattr(provider, "unknown_ids", None) or {}),
-            n_good=getattr(provider, "n_good", 0))
+            n_good=getattr(provider, "n_good", 0), elsewhere=getattr(provider, "elsewhere", 0))
 
     def __add__(self, other: RunSummary) -> RunSummary:
         def merged(a, b):
@@ -298,19 +303,22 @@ class RunSummary:
             self.epochs + other.epochs, self.fixes + other.fixes, self.late + other.late,
             self.skipped + other.skipped, self.thinned + other.thinned,
             self.dropped + other.dropped, merged(self.bad, other.bad),
-            merged(self.unknown, other.unknown), self.n_good + other.n_good)
+            merged(self.unknown, other.unknown), self.n_good + other.n_good,
+            self.elsewhere + other.elsewhere)
 
     def log(self) -> None:
         """The run's exit line."""
         unknown = self.unknown or {}
         log.info(
-            "stopped after %d epochs (%d with a fix, %d late, %d skipped%s%s)%s%s",
+            "stopped after %d epochs (%d with a fix, %d late, %d skipped%s%s)%s%s%s",
             self.epochs, self.fixes, self.late, self.skipped,
             f", {self.thinned} thinned out to keep up" if self.thinned else "",
             f", {self.dropped} dropped unread" if self.dropped else "",
             f"; malformed pose messages: {self.bad}" if self.bad else "",
             f"; pose messages for unknown receivers: {sum(unknown.values())} "
             f"(ids {sorted(unknown)[:10]})" if unknown else "",
+            f"; pose messages for other hosts' receivers (--ids): {self.elsewhere}, skipped"
+            if self.elsewhere else "",
         )
 
 

@@ -40,7 +40,7 @@ from virtualgps.run.fleet.run import Progress, ProgressTracker, RunSummary, buil
 log = logging.getLogger(__name__)
 
 STATUS_EVERY_S = 1.0  # how often a worker reports its progress
-_MAX_BATCH_BYTES = 60_000  # one forwarded datagram (AF_UNIX datagrams may be ~200 kB)
+_MAX_PENDING_BYTES = 16 << 20  # forwarded poses a worker has yet to take (~100,000 messages)
 _FORWARD_BUF_BYTES = 4 << 20
 _PR_SET_PDEATHSIG = 1  # prctl(2)
 
@@ -83,109 +83,153 @@ class WorkerJob:
 
 
 class ForwardedPoses(PoseSource):
-    """The pose messages a parent forwards to one worker: datagrams on a local socket, each a
-    pickled list of ``(message bytes, arrival time)`` as the parent's source read them.
+    """The pose messages a parent forwards to one worker, over a local stream socket: frames
+    of a 4-byte length and a pickled list of ``(message bytes, arrival time)`` as the parent's
+    source read them. (A stream, not datagrams: an AF_UNIX datagram queue holds only
+    ``net.unix.max_dgram_qlen`` datagrams, 10 by default, fewer than a busy epoch's.)
 
-    address : the abstract AF_UNIX address to bind; spec : the parent's ``--poses``
+    address : the abstract AF_UNIX address to listen on; spec : the parent's ``--poses``
     """
 
     def __init__(self, address: str, spec: str) -> None:
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-        with contextlib.suppress(OSError):
-            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _FORWARD_BUF_BYTES)
-        self._sock.bind("\0" + address)
-        self._sock.setblocking(False)
+        self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+        self._listener.bind("\0" + address)
+        self._listener.listen(1)
+        self._sock: socket.socket | None = None
+        self._buf = bytearray()
         self._spec = spec
         self.received_messages = 0
         self.dropped_messages = 0
 
+    def accept(self) -> None:
+        """Take the parent's connection (it connects once the clocks start)."""
+        self._sock, _ = self._listener.accept()
+        self._listener.close()
+        with contextlib.suppress(OSError):
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _FORWARD_BUF_BYTES)
+        self._sock.setblocking(False)
+
     def poll(self) -> list[tuple[bytes, float]]:
         """Return the messages forwarded since the last call, oldest first."""
         out: list[tuple[bytes, float]] = []
+        if self._sock is None:
+            return out
         while True:
             try:
-                data = self._sock.recv(1 << 18)
+                data = self._sock.recv(1 << 20)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:
                 break
-            out.extend(pickle.loads(data))
+            if not data:
+                break
+            self._buf += data
+        buf, k = self._buf, 0
+        while len(buf) - k >= 4:
+            size = int.from_bytes(buf[k:k + 4], "little")
+            if len(buf) - k - 4 < size:
+                break
+            out.extend(pickle.loads(buf[k + 4:k + 4 + size]))
+            k += 4 + size
+        del buf[:k]
         self.received_messages += len(out)
         return out
 
     def fileno(self) -> int:
-        return self._sock.fileno()
+        return (self._sock if self._sock is not None else self._listener).fileno()
 
     def describe(self) -> str:
         return self._spec
 
     def close(self) -> None:
-        self._sock.close()
+        if self._sock is not None:
+            self._sock.close()
+        self._listener.close()
 
 
 class Forwarder:
     """The parent's side: reads ``--poses`` and sends each message to the worker holding its
     receiver (by its ``"id"``, default 0; a message that names no receiver of the fleet, or
-    does not parse, goes to the first worker, which counts it as its own would).
+    does not parse, goes to the first worker, which counts it as its own would; one for a
+    receiver other hosts run, ``--ids``, is skipped and counted in ``elsewhere``).
 
-    source : the opened pose source; addresses : each worker's address; owner : receiver id ->
-    worker index
+    source : the opened pose source; addresses : each worker's address (it listens there);
+    owner : receiver id -> worker index; fleet_ids : every id of the fleet
     """
 
     def __init__(self, source: PoseSource, addresses: list[str],
-                 owner: dict[int, int]) -> None:
+                 owner: dict[int, int], fleet_ids: list[int]) -> None:
         self.source = source
-        self.addresses = ["\0" + a for a in addresses]
         self.owner = owner
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-        with contextlib.suppress(OSError):
-            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _FORWARD_BUF_BYTES)
-        self._sock.setblocking(False)
+        self.other_hosts = frozenset(fleet_ids) - set(owner)
+        self.elsewhere = 0
         self.dropped = 0
+        self._socks: list[socket.socket] = []
+        for a in addresses:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+            sock.connect("\0" + a)
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _FORWARD_BUF_BYTES)
+            sock.setblocking(False)
+            self._socks.append(sock)
+        self._out = [bytearray() for _ in addresses]  # (what a worker has yet to take)
 
     def fileno_list(self) -> list[int]:
         return self.source.fileno_list()
 
+    @property
+    def pending(self) -> bool:
+        """Whether some worker has yet to take what was forwarded to it."""
+        return any(self._out)
+
     def pump(self) -> None:
-        """Forward what has arrived (never waits: a worker that cannot take more loses it, as
-        a full UDP buffer would, and the loss is counted)."""
+        """Forward what has arrived, and what a worker had yet to take; never waits. A worker
+        with more than _MAX_PENDING_BYTES untaken loses new messages, as a full UDP buffer
+        would, and the loss is counted."""
         batches: dict[int, list[tuple[bytes, float]]] = {}
         for data, t in self.source.poll():
-            batches.setdefault(self._owner_of(data), []).append((data, t))
+            w = self._owner_of(data)
+            if w is None:
+                self.elsewhere += 1
+                continue
+            batches.setdefault(w, []).append((data, t))
         for w, msgs in batches.items():
-            for part in _split(msgs):
+            if len(self._out[w]) > _MAX_PENDING_BYTES:
+                if not self.dropped:
+                    log.warning("worker %d is not taking its pose messages: dropping them "
+                                "(counted in the exit line)", w)
+                self.dropped += len(msgs)
+                continue
+            frame = pickle.dumps(msgs)
+            self._out[w] += len(frame).to_bytes(4, "little") + frame
+        for w, out in enumerate(self._out):
+            while out:
                 try:
-                    self._sock.sendto(pickle.dumps(part), self.addresses[w])
-                except OSError:  # (full, or the worker is gone)
-                    if not self.dropped:
-                        log.warning("worker %d is not taking its pose messages: dropping "
-                                    "them (counted in the exit line)", w)
-                    self.dropped += len(part)
+                    n = self._socks[w].send(out)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:  # (the worker is gone: its end is reported by the loop)
+                    out.clear()
+                    break
+                del out[:n]
 
-    def _owner_of(self, data: bytes) -> int:
+    def _owner_of(self, data: bytes) -> int | None:
+        """The worker of a message's receiver (None: another host's)."""
         try:
             rid = json.loads(data).get("id", 0)
         except (ValueError, AttributeError):
             return 0
-        return self.owner.get(rid, 0) if type(rid) is int else 0
+        if type(rid) is not int:
+            return 0
+        w = self.owner.get(rid)
+        if w is None:
+            return None if rid in self.other_hosts else 0
+        return w
 
     def close(self) -> None:
-        self._sock.close()
+        for sock in self._socks:
+            sock.close()
         self.source.close()
-
-
-def _split(msgs: list[tuple[bytes, float]]) -> list[list[tuple[bytes, float]]]:
-    """Cut a worker's messages into datagrams of at most ~_MAX_BATCH_BYTES."""
-    parts, part, size = [], [], 0
-    for m in msgs:
-        if part and size + len(m[0]) + 16 > _MAX_BATCH_BYTES:
-            parts.append(part)
-            part, size = [], 0
-        part.append(m)
-        size += len(m[0]) + 16
-    if part:
-        parts.append(part)
-    return parts
 
 
 # --- the worker ------------------------------------------------------------------------------
@@ -226,6 +270,8 @@ def worker_main(job: WorkerJob, conn) -> None:
             raise _Stopped
         _, mono0, wall0, until[0] = msg
         logging.getLogger().setLevel(job.log_level)
+        if source is not None:
+            source.accept()  # (the parent connects right after the go)
         return poseproviders.SimClock(start_unix_s, mono0, wall0)
 
     source = (None if job.forward_address is None
@@ -357,7 +403,7 @@ def run_workers(
             c.send(("go", *clock.anchor, until))
         if live_source is not None:
             owner = {m.receiver_id: i for i, part in enumerate(parts) for m in part}
-            forwarder = Forwarder(live_source, addresses, owner)
+            forwarder = Forwarder(live_source, addresses, owner, fleet_ids)
         progress: list[Progress] = [Progress() for _ in parts]
         done: dict[int, RunSummary] = {}
         told = False
@@ -369,7 +415,8 @@ def run_workers(
                         with contextlib.suppress(OSError):
                             os.kill(p.pid, signal.SIGTERM)
             fds = forwarder.fileno_list() if forwarder is not None else []
-            for i, msg in _messages(conns, procs, stop, 0.5, fds, done):
+            wait_s = 0.01 if forwarder is not None and forwarder.pending else 0.5
+            for i, msg in _messages(conns, procs, stop, wait_s, fds, done):
                 if msg[0] == "status":
                     progress[i] = msg[1]
                     if on_status is not None:
@@ -379,8 +426,10 @@ def run_workers(
             if forwarder is not None:
                 forwarder.pump()
         summary = sum(done.values(), RunSummary())
-        if forwarder is not None and forwarder.dropped:
-            summary.bad = {**(summary.bad or {}), "forward-dropped": forwarder.dropped}
+        if forwarder is not None:
+            summary.elsewhere += forwarder.elsewhere
+            if forwarder.dropped:
+                summary.bad = {**(summary.bad or {}), "forward-dropped": forwarder.dropped}
         return summary
     finally:
         if forwarder is not None:
