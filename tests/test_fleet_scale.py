@@ -286,3 +286,62 @@ def test_a_killed_worker_stops_the_run_with_one_line_and_no_links_left(tmp_path)
     assert proc.returncode == 2, err
     assert "worker process" in err.strip().splitlines()[-1], err[-2000:]
     assert not any(os.path.lexists(ln) for ln in links), "links left"
+
+
+def test_poses_of_other_hosts_receivers_are_skipped_not_unknown():
+    from virtualgps.run import poseproviders
+    from virtualgps.run.config import Georef
+
+    class Src:
+        def __init__(self, msgs):
+            self.msgs = msgs
+
+        def poll(self):
+            m, self.msgs = self.msgs, []
+            return m
+
+        def fileno_list(self):
+            return []
+
+    msgs = [(json.dumps({"id": rid, "t": 100.0 + k, "x": 1.0, "y": 2.0, "z": 0.0}).encode(),
+             0.0) for k in range(3) for rid in (3, 4, 7, 9)]
+    lp = poseproviders.LiveProvider(Src(msgs), Georef(52.0, 11.0, 50.0),
+                                    poseproviders.SimClock(), 2.0, receiver_ids=[3, 4],
+                                    elsewhere_ids=[0, 1, 2, 5, 6, 7])
+    lp.pump()
+    assert lp.n_good == 6 and lp.elsewhere == 3 and dict(lp.unknown_ids) == {9: 3}
+
+
+@pytest.mark.e2e
+def test_a_fleets_status_line_adds_up_its_workers(tmp_path):
+    # On a terminal the fleet's one status line, once a second, counts every worker's
+    # receivers and epochs.
+    import pty
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "virtualgps", "run", "--receivers", "4", "--workers", "2",
+         "--poses", "demo", "--scene", "none", "--rate", "5", "--duration", "4", "--link",
+         str(tmp_path / "gps{id}")], stdout=slave, stderr=subprocess.PIPE, text=True)
+    os.close(slave)
+    out = bytearray()
+    while True:
+        r, _, _ = select.select([master], [], [], 15)
+        if not r:
+            break
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+    proc.wait(30)
+    os.close(master)
+    assert proc.returncode == 0, proc.stderr.read()
+    lines = [ln for ln in out.decode().replace("\r", "\n").split("\n") if "receivers, " in ln]
+    assert lines, out[-500:]
+    last = lines[-1]
+    assert "4 receivers, 4 with a fix" in last, last
+    epochs = int(last.split("with a fix")[1].split()[0])
+    assert 4 * 5 * 2 <= epochs <= 4 * 5 * 4, last

@@ -255,7 +255,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from virtualgps.run import config, daemon
     from virtualgps.run.fleet import limits, workers
     from virtualgps.run.fleet.members import fleet_members, parse_ids, select_ids
-    from virtualgps.run.fleet.run import ProgressTracker, RunSummary, build_fleet, log_links
+    from virtualgps.run.fleet.run import RunSummary, build_fleet, log_links, progress
 
     if args.duration is not None and not args.duration > 0:  # (0 used to mean "for ever")
         raise VirtualGPSError(f"--duration must be positive seconds, got {args.duration:g}")
@@ -321,7 +321,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         dev = r.device
         print(f"device: {dev.slave_path} -> {link}" if link else f"device: {dev.path}",
               flush=True)
-    tracker = ProgressTracker(fleet)
     shown = [0.0]
     where = poses_line(getattr(fleet.provider, "source", None))  # a live stream
 
@@ -332,11 +331,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if len(receivers) == 1:
             status.show(_status_text(fixes, r.stats, r.device))
             return
-        tracker.on_epoch(r, fixes, row)
         now = time.monotonic()
         if now - shown[0] >= 1.0:  # a fleet's line: once a second
             shown[0] = now
-            status.show(_fleet_status(tracker.now()))
+            status.show(_fleet_status(progress(fleet)))
 
     try:
         # --duration counts simulated seconds from here, not a wall-clock timer: a timer

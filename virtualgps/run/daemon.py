@@ -50,6 +50,7 @@ class DaemonStats:
 
     epochs: int = 0
     fixes: int = 0
+    last_fix: bool = False  # whether the last epoch sent had a fix
     # (late: sent over half a period after their time; skipped: the loop fell behind by over a
     # period, e.g. a suspended machine; thinned: left out to keep up, see Thinning)
     late_epochs: int = 0
@@ -372,6 +373,7 @@ class LiveReceiver:
         self.t_last = self.t_next_unix_s
         self.stats.epochs += 1
         self.stats.fixes += int(has_fix)
+        self.stats.last_fix = has_fix
         self._advance()
 
     def skip(self) -> None:

@@ -355,21 +355,11 @@ class Progress:
                         max(self.t_unix_s, other.t_unix_s), self.n_good + other.n_good)
 
 
-class ProgressTracker:
-    """Follows a fleet's epochs (:meth:`on_epoch`, the loop's callback) for :class:`Progress`."""
-
-    def __init__(self, fleet: Fleet) -> None:
-        self.fleet = fleet
-        self._last: dict[int, tuple[bool, float]] = {}
-
-    def on_epoch(self, r: daemon.LiveReceiver, fixes, row: int) -> None:
-        self._last[r.receiver_id] = bool(fixes.quality[row] > 0), float(fixes.t_unix_s[row])
-
-    def now(self) -> Progress:
-        """The fleet's progress now."""
-        rs = self.fleet.receivers
-        return Progress(
-            len(rs), sum(1 for fix, _ in self._last.values() if fix),
-            sum(r.stats.epochs for r in rs), lost_epochs([r.device for r in rs]),
-            max((t for _, t in self._last.values()), default=0.0),
-            getattr(self.fleet.provider, "n_good", 0))
+def progress(fleet: Fleet) -> Progress:
+    """A fleet's :class:`Progress` now (from its receivers' counters: nothing is followed per
+    epoch, which a fleet of thousands would pay for)."""
+    rs = fleet.receivers
+    return Progress(
+        len(rs), sum(1 for r in rs if r.stats.last_fix), sum(r.stats.epochs for r in rs),
+        lost_epochs([r.device for r in rs]), max((r.t_last or 0.0 for r in rs), default=0.0),
+        getattr(fleet.provider, "n_good", 0))

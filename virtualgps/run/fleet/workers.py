@@ -35,7 +35,7 @@ from virtualgps.exceptions import VirtualGPSError
 from virtualgps.poses.posesource import PoseSource
 from virtualgps.run import daemon, poseproviders
 from virtualgps.run.fleet.members import Member
-from virtualgps.run.fleet.run import Progress, ProgressTracker, RunSummary, build_fleet, log_links
+from virtualgps.run.fleet.run import Progress, RunSummary, build_fleet, log_links, progress
 
 log = logging.getLogger(__name__)
 
@@ -287,16 +287,14 @@ def worker_main(job: WorkerJob, conn) -> None:
         return
     except (EOFError, OSError):  # (the parent went away)
         return
-    tracker = ProgressTracker(fleet)
     next_status = [time.monotonic() + STATUS_EVERY_S]
 
     def on_epoch(r, fixes, row) -> None:
-        tracker.on_epoch(r, fixes, row)
         now = time.monotonic()
         if now >= next_status[0]:
             next_status[0] = now + STATUS_EVERY_S
             with contextlib.suppress(OSError):
-                conn.send(("status", tracker.now()))
+                conn.send(("status", progress(fleet)))
 
     try:
         daemon.run_receivers(fleet.receivers, fleet.provider, fleet.clock, stop, on_epoch,
