@@ -182,7 +182,7 @@ def test_a_fleet_past_its_capacity_thins_evenly_and_keeps_every_device_fresh(tmp
     assert counts.min() >= 1, f"{(counts == 0).sum()} devices got no epoch in 8 s"
     assert counts.mean() < 0.9 * asked, "not past capacity: the test proves nothing"
     # Thinned evenly: no device gets much less than the others.
-    assert counts.min() >= 0.5 * np.median(counts), (counts.min(), np.median(counts))
+    assert counts.min() >= 0.75 * np.median(counts), (counts.min(), np.median(counts))
     lags = np.array(lags)
     assert np.percentile(lags, 99) < 0.5, np.percentile(lags, [50, 99])  # fresh, not aged
     assert err.count("are thinned evenly") == 1, err[-3000:]

@@ -96,8 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "baud, antenna offset of each; see docs/fleets.md)")
     run.add_argument("--workers", type=int,
                      help="worker processes a fleet is spread over, each computing and serving "
-                     "a share of its receivers (default: one per core, at most one per "
-                     "receiver)")
+                     "a share of its receivers (default: one per core, at most one per 500 "
+                     "receivers)")
     run.add_argument("--ids", metavar="LO-HI",
                      help="run only the receivers with ids LO..HI: this host's share of a fleet "
                      "split across hosts (each host given the same fleet and pose stream)")

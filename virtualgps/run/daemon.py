@@ -647,14 +647,17 @@ def chunks_due(due: list[LiveReceiver], size: int = CHUNK_RECEIVERS) -> list[lis
     Returns
     -------
     chunks : lists of receivers, the longest-waiting first (the oldest last epoch: a chunk
-        thinned out at one epoch comes first at the next)
+        thinned out at one epoch comes first at the next), and among those that waited as
+        long, the one thinned out most often (without it, the first chunks of the fleet won
+        every tie and the last were thinned twice as often)
     """
     groups: dict[tuple[int, float], list[LiveReceiver]] = {}
     for m in due:
         groups.setdefault((id(m.rx), m.t_next_unix_s), []).append(m)
     chunks = [g[i:i + size] for g in groups.values() for i in range(0, len(g), size)]
     never = -math.inf
-    chunks.sort(key=lambda c: never if c[0].t_last is None else c[0].t_last)
+    chunks.sort(key=lambda c: (never if c[0].t_last is None else c[0].t_last,
+                               -c[0].stats.thinned_epochs))
     return chunks
 
 

@@ -45,11 +45,19 @@ _FORWARD_BUF_BYTES = 4 << 20
 _PR_SET_PDEATHSIG = 1  # prctl(2)
 
 
+# A worker per this many receivers at most, by default: each worker pays a tick's fixed cost
+# (~3 ms an epoch) of its own, which a small fleet does not win back (tools/bench_fleet.py, 10
+# receivers at 10 Hz: 0.04 cores in one process, 0.08 over two).
+RECEIVERS_PER_WORKER = 500
+
+
 def default_workers(n_receivers: int) -> int:
     """Worker processes for a fleet of ``n_receivers`` when ``--workers`` is not given: one per
-    core this process may run on, no more than receivers (a single receiver runs in-process).
+    core this process may run on, and one per RECEIVERS_PER_WORKER receivers at most (a fleet
+    of up to 500 runs in the one process, as a single receiver does).
     """
-    return max(1, min(n_receivers, len(os.sched_getaffinity(0))))
+    per_load = -(-n_receivers // RECEIVERS_PER_WORKER)
+    return max(1, min(per_load, len(os.sched_getaffinity(0))))
 
 
 def shares(members: list[Member], n_workers: int) -> list[list[Member]]:
