@@ -21,6 +21,7 @@ import contextlib
 import ctypes
 import json
 import logging
+import math
 import multiprocessing
 import os
 import pickle
@@ -40,6 +41,7 @@ from virtualgps.run.fleet.run import Progress, RunSummary, build_fleet, log_link
 log = logging.getLogger(__name__)
 
 STATUS_EVERY_S = 1.0  # how often a worker reports its progress
+STOP_WAIT_S = 30.0  # how long a stopped run waits for its workers' counts before ending them
 _MAX_PENDING_BYTES = 16 << 20  # forwarded poses a worker has yet to take (~100,000 messages)
 _FORWARD_BUF_BYTES = 4 << 20
 _PR_SET_PDEATHSIG = 1  # prctl(2)
@@ -370,23 +372,25 @@ def run_workers(
     summary = RunSummary()
     devices: list[list | None] = [None] * len(parts)
     try:
-        for k in env:
-            os.environ.setdefault(k, env[k])
-        for i, part in enumerate(parts):
-            job = WorkerJob(i, flags, poses_spec, link_pattern, part, fleet_ids, topic,
-                            addresses[i] if addresses else None, level)
-            parent_end, child_end = ctx.Pipe()
-            p = ctx.Process(target=worker_main, args=(job, child_end),
-                            name=f"virtualgps-worker-{i}")
-            p.start()
-            child_end.close()
-            procs.append(p)
-            conns.append(parent_end)
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+        try:
+            for k in env:
+                os.environ.setdefault(k, env[k])
+            for i, part in enumerate(parts):
+                job = WorkerJob(i, flags, poses_spec, link_pattern, part, fleet_ids, topic,
+                                addresses[i] if addresses else None, level)
+                parent_end, child_end = ctx.Pipe()
+                p = ctx.Process(target=worker_main, args=(job, child_end),
+                                name=f"virtualgps-worker-{i}")
+                p.start()
+                child_end.close()
+                procs.append(p)
+                conns.append(parent_end)
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         printed = 0
         while printed < len(parts):
             for i, msg in _messages(conns, procs, stop, 0.5):
@@ -412,17 +416,18 @@ def run_workers(
             forwarder = Forwarder(live_source, addresses, owner, fleet_ids)
         progress: list[Progress] = [Progress() for _ in parts]
         done: dict[int, RunSummary] = {}
-        told = False
-        while len(done) < len(parts):
+        told, give_up = False, math.inf
+        while len(done) < len(parts) and time.monotonic() < give_up:
             if stop.is_set() and not told:
-                told = True
+                told, give_up = True, time.monotonic() + STOP_WAIT_S
                 for p in procs:
                     if p.is_alive():
                         with contextlib.suppress(OSError):
                             os.kill(p.pid, signal.SIGTERM)
             fds = forwarder.fileno_list() if forwarder is not None else []
             wait_s = 0.01 if forwarder is not None and forwarder.pending else 0.5
-            for i, msg in _messages(conns, procs, stop, wait_s, fds, done):
+            # (once told, the stop's descriptor stays readable: wait on the workers alone)
+            for i, msg in _messages(conns, procs, None if told else stop, wait_s, fds, done):
                 if msg[0] == "status":
                     progress[i] = msg[1]
                     if on_status is not None:
@@ -450,7 +455,8 @@ def _messages(conns, procs, stop, timeout_s: float, fds=(), done=()):
     [(worker index, message)]. Raises VirtualGPSError for a worker that died without one."""
     waits = [c for i, c in enumerate(conns) if i not in done]
     sentinels = {p.sentinel: i for i, p in enumerate(procs) if i not in done}
-    ready, _, _ = select.select([*waits, *sentinels, *fds, stop.fileno()], [], [], timeout_s)
+    stops = [] if stop is None else [stop.fileno()]
+    ready, _, _ = select.select([*waits, *sentinels, *fds, *stops], [], [], timeout_s)
     out = []
     for i, c in enumerate(conns):
         if i in done:
