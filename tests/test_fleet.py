@@ -266,26 +266,28 @@ def test_flood_of_bad_and_unknown_id_messages_is_counted_and_poses_still_arrive(
         provider.close()
 
 
+class ListSource:
+    """A pose source handing out a list of (message, arrival time) at its first poll."""
+
+    def __init__(self, msgs):
+        self.msgs = msgs
+
+    def poll(self):
+        m, self.msgs = self.msgs, []
+        return m
+
+    def fileno_list(self):
+        return []
+
+    def close(self):
+        pass
+
+
 def test_live_poses_of_many_receivers_at_once_are_each_receivers_own(campus):
     # LiveProvider.poses_at (all receivers at one epoch) against pose_at one by one: before the
     # first pose, between poses, after the last (own velocity, finite difference, one pose
     # held), and beyond the pose timeout.
     _, _, georef, _ = campus
-
-    class Src:
-        def __init__(self, msgs):
-            self.msgs = msgs
-
-        def poll(self):
-            m, self.msgs = self.msgs, []
-            return m
-
-        def fileno_list(self):
-            return []
-
-        def close(self):
-            pass
-
     clock = poseproviders.SimClock(START)
     off = clock.offset_s
     msgs = []
@@ -296,7 +298,7 @@ def test_live_poses_of_many_receivers_at_once_are_each_receivers_own(campus):
             if rid == 2:
                 m.update(vx=0.4, vy=-0.1, vz=0.0)
             msgs.append((json.dumps(m).encode(), 0.0))
-    lp = poseproviders.LiveProvider(Src(msgs), georef, clock, 1.0, receiver_ids=range(8))
+    lp = poseproviders.LiveProvider(ListSource(msgs), georef, clock, 1.0, receiver_ids=range(8))
     lp.pump()
     ids = list(range(8))  # (6 and 7 never sent a pose)
     n_valid = []

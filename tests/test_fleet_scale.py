@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_fleet import START_ISO, Reader, epochs_by_time, start_fleet, stop
+from test_fleet import START_ISO, ListSource, Reader, epochs_by_time, start_fleet, stop
 
 from virtualgps.exceptions import ConfigError
 from virtualgps.run.fleet import limits
@@ -189,37 +189,34 @@ def test_a_fleet_past_its_capacity_thins_evenly_and_keeps_every_device_fresh(tmp
     assert "thinned out to keep up" in err.strip().splitlines()[-1]
 
 
+def _record(tmp_path: Path, args: list[str], n: int, seconds: float = 5.0):
+    """Run ``virtualgps run ARGS`` with ``n`` devices, read each for ``seconds``, stop it:
+    (links, each device's bytes, stderr)."""
+    proc, links = start_fleet(tmp_path, *args, n_lines=n)
+    try:
+        readers = [Reader(Path(ln)) for ln in links]
+        for r in readers:
+            r.start()
+        time.sleep(seconds)
+    finally:
+        code, err = stop(proc)
+    assert code == 0, err
+    return links, [r.close() for r in readers], err
+
+
 @pytest.mark.e2e
 def test_split_across_hosts_by_id_gives_each_receiver_its_bytes(tmp_path):
     # The same fleet of 6 on the demo walk, whole, and as host B's share (--ids 3-5): the
     # receivers of the share are those of the whole fleet, byte for byte.
     common = ["--receivers", "6", "--poses", "demo", "--rate", "5", "--start-time", START_ISO,
               "--scene", "none", "--workers", "2"]
-    proc, whole_links = start_fleet(tmp_path, *common, "--link", str(tmp_path / "all{id}"),
-                                    n_lines=6)
-    try:
-        whole = [Reader(Path(ln)) for ln in whole_links]
-        for r in whole:
-            r.start()
-        time.sleep(5.0)
-    finally:
-        code, err = stop(proc)
-    assert code == 0, err
-    whole_out = [r.close() for r in whole]
-    proc, links = start_fleet(tmp_path, *common, "--ids", "3-5", "--link",
-                              str(tmp_path / "b{id}"), n_lines=3)
-    try:
-        assert [Path(ln).name for ln in links] == ["b3", "b4", "b5"]
-        part = [Reader(Path(ln)) for ln in links]
-        for r in part:
-            r.start()
-        time.sleep(5.0)
-    finally:
-        code, err = stop(proc)
-    assert code == 0, err
+    _, whole_out, _ = _record(tmp_path, [*common, "--link", str(tmp_path / "all{id}")], 6)
+    links, part, err = _record(tmp_path, [*common, "--ids", "3-5", "--link",
+                                          str(tmp_path / "b{id}")], 3)
+    assert [Path(ln).name for ln in links] == ["b3", "b4", "b5"]
     assert "this process's share of 6" in err
-    for rid, r in zip((3, 4, 5), part, strict=True):
-        mine, theirs = epochs_by_time(r.close()), epochs_by_time(whole_out[rid])
+    for rid, data in zip((3, 4, 5), part, strict=True):
+        mine, theirs = epochs_by_time(data), epochs_by_time(whole_out[rid])
         common_t = sorted(set(mine) & set(theirs))
         assert len(common_t) >= 10, (rid, len(mine), len(theirs))
         for t in common_t:
@@ -292,20 +289,9 @@ def test_poses_of_other_hosts_receivers_are_skipped_not_unknown():
     from virtualgps.run import poseproviders
     from virtualgps.run.config import Georef
 
-    class Src:
-        def __init__(self, msgs):
-            self.msgs = msgs
-
-        def poll(self):
-            m, self.msgs = self.msgs, []
-            return m
-
-        def fileno_list(self):
-            return []
-
     msgs = [(json.dumps({"id": rid, "t": 100.0 + k, "x": 1.0, "y": 2.0, "z": 0.0}).encode(),
              0.0) for k in range(3) for rid in (3, 4, 7, 9)]
-    lp = poseproviders.LiveProvider(Src(msgs), Georef(52.0, 11.0, 50.0),
+    lp = poseproviders.LiveProvider(ListSource(msgs), Georef(52.0, 11.0, 50.0),
                                     poseproviders.SimClock(), 2.0, receiver_ids=[3, 4],
                                     elsewhere_ids=[0, 1, 2, 5, 6, 7])
     lp.pump()
