@@ -710,14 +710,18 @@ class Thinning:
         if not self.warned and self.thinned > THIN_WARN_SHARE * self.asked:
             self.warned = True
             share = 1.0 - self.thinned / self.asked
-            cores = os.cpu_count() or 1
+            n = self.n_receivers
+            what = "the receiver" if n == 1 else f"{n} receivers"
+            advice = ("lower --rate, or use a lighter scene or profile (one receiver's epochs "
+                      "are computed in one process)" if n == 1 else
+                      "use more worker processes (--workers, this machine has "
+                      f"{os.cpu_count() or 1} cores), split the fleet across hosts (--ids), "
+                      "or lower --rate")
             log.warning(
-                "%d receivers at %g Hz need %.2f ms each per epoch, %.0f %% more than this "
-                "process has: epochs are thinned evenly, each receiver gets ~%.1f Hz (%.0f %% "
-                "of its epochs); use more worker processes (--workers, this machine has %d "
-                "cores), split the fleet across hosts (--ids), or lower --rate",
-                self.n_receivers, rate_hz, 1e3 * self.s_per_receiver,
-                100.0 * (1.0 / share - 1.0), share * rate_hz, 100.0 * share, cores)
+                "%s at %g Hz need%s %.2f ms each per epoch, %.0f %% more than this process "
+                "has: epochs are thinned evenly, each receiver gets ~%.1f Hz (%.0f %% of its "
+                "epochs); %s", what, rate_hz, "s" if n == 1 else "", 1e3 * self.s_per_receiver,
+                100.0 * (1.0 / share - 1.0), share * rate_hz, 100.0 * share, advice)
         self.asked = self.thinned = 0
         self.window_start_s = now
 

@@ -175,14 +175,16 @@ def build_fleet(
             if serial_port:
                 devices.append(SerialDevice(serial_port, p.baud))
             else:
-                pacing = {"chunk_s": FLEET_CHUNK_S} if len(members) > 1 else {}
+                # (by the whole fleet: a receiver is paced alike in any share of it)
+                fleet_size = len(fleet_ids or members)
+                pacing = {"chunk_s": FLEET_CHUNK_S} if fleet_size > 1 else {}
                 try:
                     dev = PtyDevice(Path(m.link), baud=p.baud, threaded=False, **pacing)
                 except OSError as exc:
                     if exc.errno not in (errno.EMFILE, errno.ENFILE, errno.ENOSPC):
                         raise
                     raise pty_error(exc, len(waiter.devices), len(members)) from exc
-                if len(fleet_ids or members) > QUIET_CLIENTS_ABOVE:
+                if fleet_size > QUIET_CLIENTS_ABOVE:
                     dev.client_log_level = logging.DEBUG
                 waiter.add(dev)
         # The simulated clock starts once everything is loaded and made: with --start-time,
