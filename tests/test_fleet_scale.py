@@ -36,6 +36,16 @@ def test_shares_are_contiguous_and_even():
     assert len(shares(members[:2], 4)) == 2  # (never an empty worker)
 
 
+def test_default_workers_one_per_core_and_per_500_receivers(monkeypatch):
+    from virtualgps.run.fleet import workers
+
+    monkeypatch.setattr(workers.os, "sched_getaffinity", lambda _: set(range(16)))
+    assert [workers.default_workers(n) for n in (1, 10, 500, 501, 1200, 10_000)] == [
+        1, 1, 1, 2, 3, 16]
+    monkeypatch.setattr(workers.os, "sched_getaffinity", lambda _: {0, 1})
+    assert workers.default_workers(10_000) == 2
+
+
 def test_ids_select_this_hosts_share():
     members = fleet_members(10, None, 0, "gps{id}")
     assert [m.receiver_id for m in select_ids(members, parse_ids("3-5"))] == [3, 4, 5]

@@ -9,8 +9,8 @@ alone, in whichever share it falls (each row of a tick is computed as that recei
 
 The parent process only coordinates: it prints the device lines in the fleet's order, starts
 every worker's simulated clock at one instant (so all receivers keep one time), forwards live
-pose messages (UDP, TCP, stdin) to the worker that holds each message's receiver (one
-datagram per worker and read, over a local socket), adds up the status line and the exit
+pose messages (UDP, TCP, stdin) to the worker that holds each message's receiver (a framed
+batch per worker and read, over a local stream socket), adds up the status line and the exit
 line, and stops the workers on SIGINT/SIGTERM. A worker dies with its parent (a killed parent
 leaves no orphan holding ptys), and a worker that fails stops the run with its error.
 """
