@@ -187,6 +187,47 @@ def test_rows_give_the_bytes_of_one_receiver_simulated_epoch_by_epoch(campus):
     assert bytes(out) == fleet[3]
 
 
+def test_rows_drawn_ahead_give_back_what_a_row_taken_out_did_not_use():
+    # A fleet's rows draw their uniforms several epochs at once; a row taken out between
+    # (a restart, another batch) must leave its generators where epoch-by-epoch draws leave
+    # them, and the rows must go on from where every generator then stands.
+    from virtualgps.receiver.profiles import load_profile
+    from virtualgps.receiver.state import (
+        DRAW_AHEAD,
+        ReceiverRows,
+        ReceiverState,
+        draw_layout,
+        draw_plan,
+        draw_uniforms,
+        model_streams,
+    )
+
+    prof = load_profile("holux-m1000")
+    layout = draw_layout(prof, 32)
+    plan = draw_plan(tuple(layout.items()))
+    assert len(plan) >= 3  # (several streams: the paper's, white, correlated, fading...)
+
+    def gens(seed):
+        rng = np.random.default_rng(seed)
+        return rng, model_streams(rng)
+
+    seeds = (1, 2, 3)
+    live = [gens(s) for s in seeds]
+    rows = ReceiverRows.stack([ReceiverState(streams=st) for _, st in live],
+                              [r for r, _ in live], prof, 32)
+    n = DRAW_AHEAD + 3  # (mid-way through the second draw ahead)
+    got = np.array([rows.uniforms(plan) for _ in range(n + 1)])
+    want = [draw_uniforms(*gens(s), layout, n + 4) for s in seeds]  # (epoch by epoch's)
+    for i in range(len(seeds)):
+        assert np.array_equal(got[:, i], want[i][:n + 1])
+    rows.row_state(1, prof)  # row 1 out after n + 1 epochs: its next draws are epoch n + 2's
+    assert np.array_equal(draw_uniforms(*live[1], layout, 1)[0], want[1][n + 1])
+    rows.row_state(1, prof)  # (given back once only)
+    nxt = rows.uniforms(plan)  # (the others give back theirs too, and all draw again)
+    assert np.array_equal(nxt[0], want[0][n + 1]) and np.array_equal(nxt[2], want[2][n + 1])
+    assert np.array_equal(nxt[1], want[1][n + 2])
+
+
 class CommandSink(Sink):
     """A device whose client writes ``command`` once ``after`` epochs have been written."""
 

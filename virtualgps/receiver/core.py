@@ -198,11 +198,7 @@ def simulate(
     rows = isinstance(state, ReceiverRows)  # receivers side by side, one epoch each
     if rows:
         streams = state.streams
-        u = np.empty((n_t, layout["total"]))
-        plan = draw_plan(tuple(layout.items()))
-        for i, (r, st) in enumerate(zip(state.rngs, streams, strict=True)):
-            for name, a, b in plan:  # (draw_uniforms' one row, written in place)
-                (r if name == "usarsim" else st[name]).random(out=u[i, a:b])
+        u = state.uniforms(draw_plan(tuple(layout.items())))
         dt_s = t - state.last_t_unix_s
     else:
         streams = state.streams if state.streams is not None else model_streams(rng)

@@ -69,6 +69,7 @@ class ReceiverState:
 
 
 START_KINDS = ("hot", "warm", "cold")
+DRAW_AHEAD = 8  # epochs of uniforms that receivers side by side draw at once (ReceiverRows)
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,8 @@ class ReceiverRows:
 
     rngs : the receivers' own generators (the paper's two uniforms each)
     streams : the receivers' model streams (:func:`model_streams`)
+    ahead : the uniforms drawn ahead (:meth:`uniforms`; empty: none), shared by the rows that
+        :func:`~virtualgps.receiver.core.simulate` returns
     """
 
     n_epochs: np.ndarray
@@ -105,6 +108,60 @@ class ReceiverRows:
     rr_mps: np.ndarray
     rngs: list
     streams: list
+    ahead: list = field(default_factory=list, compare=False)
+
+    def uniforms(self, plan: tuple[tuple[str, int, int], ...]) -> np.ndarray:
+        """The next epoch's uniforms, (n, plan's last end column): each row what the receiver
+        alone draws (:func:`draw_uniforms` for one epoch).
+
+        They are drawn DRAW_AHEAD epochs at a time, one call per receiver and stream: a
+        fleet's per-call costs were a tenth of its simulation. A row taken out
+        (:meth:`row_state`) first gives back what was drawn ahead of it (its generators are
+        moved back), so whatever draws from them next draws what it would have.
+
+        Parameters
+        ----------
+        plan : :func:`draw_plan` of the epoch's layout
+
+        Returns
+        -------
+        u : (n, total) uniforms on [0, 1)
+        """
+        a = self.ahead
+        if a and (a[0] != plan or a[2] >= a[3] or a[4].any()):
+            self._give_back()
+            a.clear()
+        if not a:
+            gens = [self._gens(name) for name, _, _ in plan]
+            k = DRAW_AHEAD if all(hasattr(g.bit_generator, "advance")
+                                  for gs in gens for g in gs) else 1
+            blocks = []
+            for (_, lo, hi), gs in zip(plan, gens, strict=True):
+                block = np.empty((len(gs), k, hi - lo))
+                for g, out in zip(gs, block, strict=True):
+                    g.random(out=out)  # (k rows at once: the k rows drawn one by one)
+                blocks.append(block)
+            a += [plan, blocks, 0, k, np.zeros(len(self.rngs), bool)]
+        j = a[2]
+        a[2] += 1
+        return np.concatenate([b[:, j] for b in a[1]], axis=1)
+
+    def _gens(self, name: str) -> list[np.random.Generator]:
+        return self.rngs if name == "usarsim" else [st[name] for st in self.streams]
+
+    def _give_back(self, rows: range | list[int] | None = None) -> None:
+        """Move the generators of ``rows`` (default: all not yet given back) back by what
+        was drawn ahead of them and not used."""
+        if not self.ahead:
+            return
+        plan, _, used, k, back = self.ahead
+        rows = [i for i in (range(len(back)) if rows is None else rows) if not back[i]]
+        if used < k:
+            for name, lo, hi in plan:
+                gens = self._gens(name)
+                for i in rows:  # (PCG64 steps back modulo its period: one double, one step)
+                    gens[i].bit_generator.advance(-(k - used) * (hi - lo) % (1 << 128))
+        back[rows] = True
 
     @staticmethod
     def stack(states: list[ReceiverState], rngs: list[np.random.Generator], profile: Profile,
@@ -167,6 +224,7 @@ class ReceiverRows:
         -------
         state : ReceiverState
         """
+        self._give_back([i])
         ce, ct = profile.correlated_error, profile.cn0_tracking
         nav = self.nav_enu_m[i]
         hold = self.hold_enu_m[i]
