@@ -14,9 +14,9 @@ reader notes when the first byte of each epoch arrived on each device: when epol
 device readable (the byte was there by then), and when the reader had read it (later by its
 reads of the devices before it in the same batch: a thousand devices readable at once take one
 reader several milliseconds). The report, one line per size: the daemon's CPU in cores and per
-receiver-epoch delivered, the share of epochs delivered (mean and worst device), and the first
-byte's delay after its time tag (median and 99th percentile over all devices and epochs; the
-p99 also as read).
+receiver-epoch delivered, the share of the epochs due in the window (tags up to a second before
+its end) that arrived (mean and worst device), and the first byte's delay after its time tag
+(median and 99th percentile over all devices and epochs; the p99 also as read).
 
 The time tag is the epoch's simulated UTC, here the wall clock (no --start-time): the delay is
 what a client sees between the epoch's instant and its first byte.
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -197,18 +198,19 @@ def bench(n: int, seconds: float, rate: float, scene: str, cfg: str | None,
                 sender.kill()
                 sender.wait()
     day = np.floor(w0 / 86400.0) * 86400.0
+    # The epochs due in the window (tags from its start to a second before its end, that second
+    # left for them to arrive): each device's share is how many of those it received.
+    k_lo, k_hi = math.ceil(w0 * rate - 1e-6), math.floor((w1 - 1.0) * rate + 1e-6)
     delays, read_delays, shares = [], [], []
     for dev in first:
-        arr = [(t, t_read, tag_s(f)) for t, t_read, f in dev if w0 <= t <= w1]
-        if not arr:
-            shares.append(0.0)
-            continue
-        t_arr = np.array([a[0] for a in arr])
-        tags = np.array([a[2] for a in arr]) + day
-        tags = np.where(tags - t_arr > 43200, tags - 86400, tags)  # (midnight)
-        delays.extend(t_arr - tags)
-        read_delays.extend(np.array([a[1] for a in arr]) - tags)
-        shares.append(len(set(np.round(tags, 3))) / ((w1 - w0) * rate))
+        arr = np.array([(t, t_read, tag_s(f)) for t, t_read, f in dev]).reshape(-1, 3)
+        tags = arr[:, 2] + day
+        tags = np.where(tags - arr[:, 0] > 43200, tags - 86400, tags)  # (midnight)
+        k = np.round(tags * rate)
+        sel = (k >= k_lo) & (k <= k_hi)
+        delays.extend(arr[sel, 0] - tags[sel])
+        read_delays.extend(arr[sel, 1] - tags[sel])
+        shares.append(len(set(k[sel].tolist())) / (k_hi - k_lo + 1))
     d, d_read = np.array(delays), np.array(read_delays)
     cores = (c1 - c0) / (w1 - w0)
     delivered = float(np.mean(shares))

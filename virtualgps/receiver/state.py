@@ -72,6 +72,20 @@ START_KINDS = ("hot", "warm", "cold")
 DRAW_AHEAD = 8  # epochs of uniforms that receivers side by side draw at once (ReceiverRows)
 
 
+@dataclass
+class _Ahead:
+    """Uniforms :class:`ReceiverRows` drew ahead: per plan block an (n, k, width) array, of
+    which ``used`` epochs are used; ``back`` the rows already given back; ``epochs`` the
+    epochs the rows have drawn so far."""
+
+    plan: tuple = ()
+    blocks: list = field(default_factory=list)
+    used: int = 0
+    k: int = 0
+    back: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    epochs: int = 0
+
+
 @dataclass(frozen=True)
 class ReceiverRows:
     """The states of several receivers simulated side by side, one epoch each (a fleet's
@@ -86,7 +100,7 @@ class ReceiverRows:
 
     rngs : the receivers' own generators (the paper's two uniforms each)
     streams : the receivers' model streams (:func:`model_streams`)
-    ahead : the uniforms drawn ahead (:meth:`uniforms`; empty: none), shared by the rows that
+    ahead : the uniforms drawn ahead (:meth:`uniforms`), shared by the rows that
         :func:`~virtualgps.receiver.core.simulate` returns
     """
 
@@ -108,14 +122,16 @@ class ReceiverRows:
     rr_mps: np.ndarray
     rngs: list
     streams: list
-    ahead: list = field(default_factory=list, compare=False)
+    ahead: _Ahead = field(default_factory=_Ahead, compare=False)
 
     def uniforms(self, plan: tuple[tuple[str, int, int], ...]) -> np.ndarray:
         """The next epoch's uniforms, (n, plan's last end column): each row what the receiver
         alone draws (:func:`draw_uniforms` for one epoch).
 
-        They are drawn DRAW_AHEAD epochs at a time, one call per receiver and stream: a
-        fleet's per-call costs were a tenth of its simulation. A row taken out
+        Rows that go on together past their first epoch draw DRAW_AHEAD epochs at a time, one
+        call per receiver and stream: a fleet's per-call costs were a tenth of its
+        simulation. (Rows made afresh every epoch, as an overloaded fleet's chunks are, draw
+        one at a time: what they drew ahead would only be given back.) A row taken out
         (:meth:`row_state`) first gives back what was drawn ahead of it (its generators are
         moved back), so whatever draws from them next draws what it would have.
 
@@ -128,40 +144,40 @@ class ReceiverRows:
         u : (n, total) uniforms on [0, 1)
         """
         a = self.ahead
-        if a and (a[0] != plan or a[2] >= a[3] or a[4].any()):
+        if a.blocks and (a.plan != plan or a.used >= a.k or a.back.any()):
             self._give_back()
-            a.clear()
-        if not a:
+            a.blocks = []
+        if not a.blocks:
             gens = [self._gens(name) for name, _, _ in plan]
-            k = DRAW_AHEAD if all(hasattr(g.bit_generator, "advance")
-                                  for gs in gens for g in gs) else 1
-            blocks = []
+            k = DRAW_AHEAD if a.epochs and all(hasattr(g.bit_generator, "advance")
+                                               for gs in gens for g in gs) else 1
             for (_, lo, hi), gs in zip(plan, gens, strict=True):
                 block = np.empty((len(gs), k, hi - lo))
                 for g, out in zip(gs, block, strict=True):
                     g.random(out=out)  # (k rows at once: the k rows drawn one by one)
-                blocks.append(block)
-            a += [plan, blocks, 0, k, np.zeros(len(self.rngs), bool)]
-        j = a[2]
-        a[2] += 1
-        return np.concatenate([b[:, j] for b in a[1]], axis=1)
+                a.blocks.append(block)
+            a.plan, a.used, a.k, a.back = plan, 0, k, np.zeros(len(self.rngs), bool)
+        j = a.used
+        a.used += 1
+        a.epochs += 1
+        return np.concatenate([b[:, j] for b in a.blocks], axis=1)
 
     def _gens(self, name: str) -> list[np.random.Generator]:
         return self.rngs if name == "usarsim" else [st[name] for st in self.streams]
 
-    def _give_back(self, rows: range | list[int] | None = None) -> None:
+    def _give_back(self, rows: list[int] | None = None) -> None:
         """Move the generators of ``rows`` (default: all not yet given back) back by what
         was drawn ahead of them and not used."""
-        if not self.ahead:
+        a = self.ahead
+        if not a.blocks:
             return
-        plan, _, used, k, back = self.ahead
-        rows = [i for i in (range(len(back)) if rows is None else rows) if not back[i]]
-        if used < k:
-            for name, lo, hi in plan:
-                gens = self._gens(name)
-                for i in rows:  # (PCG64 steps back modulo its period: one double, one step)
-                    gens[i].bit_generator.advance(-(k - used) * (hi - lo) % (1 << 128))
-        back[rows] = True
+        rows = [i for i in (range(len(a.back)) if rows is None else rows) if not a.back[i]]
+        if a.used < a.k:
+            for i in rows:
+                for name, lo, hi in a.plan:  # (PCG64 steps back modulo its period: one double,
+                    g = self.rngs[i] if name == "usarsim" else self.streams[i][name]  # one step)
+                    g.bit_generator.advance(-(a.k - a.used) * (hi - lo) % (1 << 128))
+        a.back[rows] = True
 
     @staticmethod
     def stack(states: list[ReceiverState], rngs: list[np.random.Generator], profile: Profile,
