@@ -340,6 +340,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         # --duration counts simulated seconds from here, not a wall-clock timer: a timer
         # races the epochs on whole seconds and sends 3 or 4 of them in 3 s.
         until = None if args.duration is None else fleet.clock.now_unix_s() + args.duration
+        daemon.freeze_heap()
         daemon.run_receivers(receivers, fleet.provider, fleet.clock, stop, on_epoch,
                              waiter=fleet.waiter, until_unix_s=until)
     finally:

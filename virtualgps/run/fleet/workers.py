@@ -306,6 +306,7 @@ def worker_main(job: WorkerJob, conn) -> None:
             with contextlib.suppress(OSError):
                 conn.send(("status", progress(fleet)))
 
+    daemon.freeze_heap()
     try:
         daemon.run_receivers(fleet.receivers, fleet.provider, fleet.clock, stop, on_epoch,
                              waiter=fleet.waiter, until_unix_s=until[0])
