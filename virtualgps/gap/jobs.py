@@ -148,7 +148,7 @@ def worker_count(jobs: int | None = None, dask_address: str | None = None) -> in
 
 
 def _local_workers(jobs: int | None) -> int:
-    return jobs or os.cpu_count() or 1
+    return jobs or len(os.sched_getaffinity(0))  # (the cores this process may run on)
 
 
 def map_jobs(

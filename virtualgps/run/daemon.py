@@ -715,9 +715,9 @@ class Thinning:
             what = "the receiver" if n == 1 else f"{n} receivers"
             advice = ("lower --rate, or use a lighter scene or profile (one receiver's epochs "
                       "are computed in one process)" if n == 1 else
-                      "use more worker processes (--workers, this machine has "
-                      f"{os.cpu_count() or 1} cores), split the fleet across hosts (--ids), "
-                      "or lower --rate")
+                      "use more worker processes (--workers, this process may use "
+                      f"{len(os.sched_getaffinity(0))} cores), split the fleet across hosts "
+                      "(--ids), or lower --rate")
             log.warning(
                 "%s at %g Hz need%s %.2f ms each per epoch, %.0f %% more than this process "
                 "has: epochs are thinned evenly, each receiver gets ~%.1f Hz (%.0f %% of its "
