@@ -173,9 +173,10 @@ class ReceiverRows:
             return
         rows = [i for i in (range(len(a.back)) if rows is None else rows) if not a.back[i]]
         if a.used < a.k:
+            # PCG64 steps back by advancing modulo its period, 2**128; one double is one step.
             for i in rows:
-                for name, lo, hi in a.plan:  # (PCG64 steps back modulo its period: one double,
-                    g = self.rngs[i] if name == "usarsim" else self.streams[i][name]  # one step)
+                for name, lo, hi in a.plan:
+                    g = self.rngs[i] if name == "usarsim" else self.streams[i][name]
                     g.bit_generator.advance(-(a.k - a.used) * (hi - lo) % (1 << 128))
         a.back[rows] = True
 
