@@ -140,11 +140,20 @@ class PtyLoop:
         step without them leaves the master unread, so a client's command waited for the load
         to ease (3,500 receivers in one process: a ``$PMTK000`` answered after 0.5–1.8 s).
         """
-        for fd, _ in self._ep.poll(0):
+        self._poll(0.0)
+        self.run_due()
+
+    def _poll(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for epoll; mark the devices it reports (their next step
+        reads the master). Returns whether one of the caller's descriptors is readable."""
+        extra = False
+        for fd, _ in self._ep.poll(timeout_s):
             if fd in self._by_fd:
                 self._kicked.add(fd)
                 self._events.add(fd)
-        self.run_due()
+            else:
+                extra = True
+        return extra
 
     def take_client_ready(self) -> list[PtyDevice]:
         """Return (and forget) the devices whose client bytes wait for ``read_available``."""
@@ -183,14 +192,7 @@ class PtyLoop:
             timeout_s = max(0.0, min(deadline_s, next_s) - now_s)
             if self._kicked:
                 timeout_s = 0.0
-            extra = False
-            for fd, _ in self._ep.poll(timeout_s):
-                if fd in self._by_fd:
-                    self._kicked.add(fd)
-                    self._events.add(fd)  # (its step looks at the master)
-                else:
-                    extra = True
-            if extra:
+            if self._poll(timeout_s):
                 self.run_due()
                 return True
 
