@@ -71,7 +71,6 @@ def prepare(data: Path) -> None:
     from virtualgps.gap import tool
     from virtualgps.gap.runs import prepare_runs
     from virtualgps.receiver.profiles import build_profile
-    from virtualgps.sky import ephemeris as eph
 
     inp = tool.GapInputs(real=(str(data / "mt3339-static" / "hour_test_1.txt"),),
                          truth=("static",), scene="none",
@@ -80,9 +79,8 @@ def prepare(data: Path) -> None:
                          profile="holux-m1000")
     runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
     prof = build_profile(table, source)
-    center_s = tool.ephemeris_of(tle, prof.constellations.letters()).epoch_center_unix_s
-    runs = prepare_runs(runs_in, scene, scene_dir, tle, prof, lambda t0: eph.sidereal_shift_s(
-        t0, center_s, tool.SKY_SHIFT_MAX_DAYS), 1, None)
+    shift = tool.sky_shift(tool.ephemeris_of(tle, prof.constellations.letters()))
+    runs = prepare_runs(runs_in, scene, scene_dir, tle, prof, shift, 1, None)
     RUN = (runs[0].setup, prof)
 
 

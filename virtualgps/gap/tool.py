@@ -89,6 +89,13 @@ def sky_note(epoch_center_unix_s: float, t_unix_s: float) -> str | None:
             "day's set (--tle: a TLE set or the day's RINEX navigation file)")
 
 
+def sky_shift(ephem: eph.Constellation) -> Callable[[float], float]:
+    """The sky-time shift a diagnosis uses for a run starting at ``t0`` (UTC s): none within
+    SKY_SHIFT_MAX_DAYS of the TLE set ``ephem``'s epoch, else whole sky-repeat periods
+    (:func:`virtualgps.sky.ephemeris.sidereal_shift_s`)."""
+    return lambda t0: eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
+
+
 def load_inputs(inp: GapInputs):
     """Read the runs, the scene, the TLE set and the profile (every input error raised here).
 
@@ -176,9 +183,7 @@ def diagnose(
     profile = build_profile(table, source)
     ephem = ephemeris_of(tle, profile.constellations.letters())
 
-    def shift(t0: float) -> float:
-        return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, SKY_SHIFT_MAX_DAYS)
-
+    shift = sky_shift(ephem)
     for r in runs_in:  # (an orbit file that misses a run would leave its sky empty)
         t = r.epochs.t_unix_s
         for t_at in (float(t[0]), float(t[-1])):

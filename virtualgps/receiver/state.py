@@ -84,6 +84,7 @@ class _Ahead:
     k: int = 0
     back: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     epochs: int = 0
+    rewinds: bool | None = None  # whether every generator can step back (PCG64's advance)
 
 
 @dataclass(frozen=True)
@@ -149,8 +150,9 @@ class ReceiverRows:
             a.blocks = []
         if not a.blocks:
             gens = [self._gens(name) for name, _, _ in plan]
-            k = DRAW_AHEAD if a.epochs and all(hasattr(g.bit_generator, "advance")
-                                               for gs in gens for g in gs) else 1
+            if a.epochs and a.rewinds is None:  # (looked at once: the generators stay)
+                a.rewinds = all(hasattr(g.bit_generator, "advance") for gs in gens for g in gs)
+            k = DRAW_AHEAD if a.epochs and a.rewinds else 1
             for (_, lo, hi), gs in zip(plan, gens, strict=True):
                 block = np.empty((len(gs), k, hi - lo))
                 for g, out in zip(gs, block, strict=True):
