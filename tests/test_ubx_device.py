@@ -42,19 +42,51 @@ def _read_for(fd: int, seconds: float) -> bytes:
     return bytes(out)
 
 
+def _ubx_whole_at(data: bytes, k: int) -> int:
+    """The end of a whole UBX frame with a good checksum at ``k`` (u-blox 8 protocol spec,
+    §32.4: 8-bit Fletcher over class, id, length and payload), or -1."""
+    if data[k:k + 2] != b"\xb5\x62" or k + 6 > len(data):
+        return -1
+    end = k + 8 + int.from_bytes(data[k + 4:k + 6], "little")
+    if end > len(data):
+        return -1
+    a = b = 0
+    for x in data[k + 2:end - 2]:
+        a = (a + x) & 0xFF
+        b = (b + a) & 0xFF
+    return end if data[end - 2:end] == bytes((a, b)) else -1
+
+
+def _nmea_whole_at(data: bytes, k: int) -> int:
+    """The end of a whole NMEA sentence with a good checksum at ``k``, or -1."""
+    if data[k:k + 1] != b"$":
+        return -1
+    end = data.find(b"\r\n", k, k + 90)
+    if end < 0 or data[end - 3:end - 2] != b"*":
+        return -1
+    x = 0
+    for c in data[k + 1:end - 3]:
+        x ^= c
+    return end + 2 if data[end - 2:end] == b"%02X" % x else -1
+
+
 def _parse_all(data: bytes) -> list:
-    """Every message of a byte stream of UBX and NMEA, pyubx2 raising on any error (the
-    stream is cut at its last whole message first: the read ends anywhere)."""
-    end = data.rfind(b"\r\n")
-    end = end + 2 if end >= 0 else 0
-    # (a UBX frame may follow the last line: keep it if whole)
-    k = data.rfind(b"\xb5\x62")
-    if k >= end and k + 6 <= len(data):
-        n = 8 + int.from_bytes(data[k + 4:k + 6], "little")
-        if k + n <= len(data):
-            end = k + n
-    reader = pyubx2.UBXReader(io.BytesIO(data[:end]), protfilter=pyubx2.NMEA_PROTOCOL
-                              | pyubx2.UBX_PROTOCOL, quitonerror=pyubx2.ERR_RAISE)
+    """Every message of a byte stream of UBX and NMEA, pyubx2 raising on any error. A read
+    starts and ends anywhere in the stream: it is parsed from its first whole message (one
+    with a good checksum; a UBX payload may hold a ``$``) to its last."""
+    start = next((k for k in range(len(data))
+                  if _ubx_whole_at(data, k) >= 0 or _nmea_whole_at(data, k) >= 0), len(data))
+    end = start
+    while (k := max(_ubx_whole_at(data, end), _nmea_whole_at(data, end))) >= 0:
+        end = k
+    rest = data[end:]
+    cut = (rest[:2] in (b"\xb5", b"\xb5\x62") and (len(rest) < 6 or len(rest) < 8 + int.from_bytes(
+        rest[4:6], "little"))) or (rest[:1] == b"$" and b"\r\n" not in rest)
+    if cut:  # the read ended inside this message; anything else is handed on, to raise
+        rest = b""
+    reader = pyubx2.UBXReader(io.BytesIO(data[start:end] + rest),
+                              protfilter=pyubx2.NMEA_PROTOCOL | pyubx2.UBX_PROTOCOL,
+                              quitonerror=pyubx2.ERR_RAISE)
     return [msg for _, msg in reader]
 
 
