@@ -62,8 +62,12 @@ _MAX_CHUNK_BYTES = 1024
 # Most unread bytes we let sit in the pty's kernel buffers. TIOCINQ on the slave counts only the
 # line discipline's read buffer (N_TTY_BUF_SIZE = 4096; it reports at most 4095), not the tty
 # flip buffers behind it (~16 KiB more). Keeping our unread share below that buffer keeps the
-# count exact, so the backlog and the age of unread output are known, not guessed.
-_KERNEL_CAP_BYTES = 2048
+# count exact, so the backlog and the age of unread output are known, not guessed. Between
+# measurements what was written counts as unread, so the cap also sets how often a fleet's
+# device opens its slave to measure: 2048 let three 650-byte epochs at most go between two
+# measurements, 3072 four or five (300 receivers at 10 Hz: 4.5 -> 2.6 slave opens per device
+# and second, counted with strace -c), 1 KiB still short of the line discipline's buffer.
+_KERNEL_CAP_BYTES = 3072
 
 
 def _termios_speed(baud: int) -> int:
@@ -591,11 +595,16 @@ class PtyDevice(QueuedLine):
                     # The bound on what the client has unread grows with every epoch written
                     # until a measurement: measure now rather than leave the epoch to a step,
                     # which measured too, a step later (every fourth epoch of a fleet of
-                    # 2,000 at 10 Hz came 20-30 ms late). The backlog's age is still checked
-                    # by the step's own measurements (_measured_s).
+                    # 2,000 at 10 Hz came 20-30 ms late). The backlog's age is checked by the
+                    # step's own measurements (_measured_s); one that finds everything read
+                    # stands in for the next of those (nothing unread can be stale): a fleet
+                    # whose clients keep up then opens each slave about half as often.
                     unread = self._measure_unread()
                     if unread is not None:
                         self._kernel_unread = unread
+                        if unread == 0:
+                            self._unread_age_s(now_s, 0)  # (forget what was sent and read)
+                            self._measured_s = now_s
                 if idle and self._kernel_unread + n <= _KERNEL_CAP_BYTES:
                     try:
                         n_sent = os.write(self._master, data)
