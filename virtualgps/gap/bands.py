@@ -127,7 +127,7 @@ def _g1_inv(spec: MetricSpec, y: float) -> float:
     return math.exp(y) - spec.c if spec.kind == "log" else y
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _t_quantile(dof: int, q: float) -> float:
     """Student's t quantile (a few seed counts and levels recur)."""
     return float(special.stdtrit(dof, q))

@@ -25,9 +25,8 @@ from scipy import special
 
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import MAX_INNER, Design
-from virtualgps.gap.ensemble import Ensemble
 from virtualgps.gap.motion import LAG_MIN_VEL_RMS_MPS
-from virtualgps.gap.runs import Run, sim_obs
+from virtualgps.gap.runs import Run
 from virtualgps.gap.select import Request, Selection, drive, select
 from virtualgps.gap.simulator import HELD, OUTER, Simulator
 from virtualgps.gap.where import (
@@ -172,8 +171,10 @@ def pooled(runs: list[Run], sims: list[Obs], errs: list[np.ndarray]
     return (view, obs(sims), cat([r.err_real for r in runs], axis=1), cat(errs, axis=1))
 
 
-def where_table(runs: list[Run], ens: dict[int, Ensemble]) -> tuple[list[dict], float]:
+def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float]:
     """The located gaps of every segment (pooled over runs, and per run), judged together.
+
+    sims : each run's ensemble as :func:`virtualgps.gap.runs.sim_obs` of its view
 
     Returns
     -------
@@ -182,7 +183,6 @@ def where_table(runs: list[Run], ens: dict[int, Ensemble]) -> tuple[list[dict], 
     alpha_row : the per-row level the rows were judged at (:func:`virtualgps.gap.where.
         finish_rows`)
     """
-    sims = [sim_obs(ens[i], r.view) for i, r in enumerate(runs)]
     errs = [errors_enu(r.view, s) for r, s in zip(runs, sims, strict=True)]
     view, sim, er, es = pooled(runs, sims, errs)
     rows: list[dict] = []

@@ -211,9 +211,12 @@ def diagnose(
     # Causes that are not receiver effects come first: a truth offset is removed before
     # anything is judged against the truth.
     tau_real = [_corr_time_s(r.view, r.err_real[0]) for r in runs]
+    # (each ensemble as the logs print it, once: the causes, the located gaps and the figures
+    # read it; a moved truth changes the errors, not this)
+    base_sims = [sim_obs(base_ens[i], r.view) for i, r in enumerate(runs)]
     causes: list[dict] = []
     for i, r in enumerate(runs):
-        sim_err = errors_enu(r.view, sim_obs(base_ens[i], r.view))
+        sim_err = errors_enu(r.view, base_sims[i])
         off = cz.truth_offset(r, tau_real[i], sim_err)
         if off is not None:
             causes.append(off)
@@ -233,7 +236,7 @@ def diagnose(
     # The located gaps are judged in a thread while the workers simulate the candidates (not
     # where the benchmark models workers in this process: the thread would share their time).
     judging = ThreadPoolExecutor(1) if not modelling() else _Here()
-    where_job = judging.submit(dg.where_table, runs, base_ens)
+    where_job = judging.submit(dg.where_table, runs, base_sims)
     # Guards as long as the real error's correlation time: held-out real data then share no
     # correlated error with the data a fit saw (the simulations use seeds of their own).
     design = make_design([r.view.name for r in runs], [r.view.t_unix_s for r in runs],
@@ -260,11 +263,14 @@ def diagnose(
                                    systems=(logged, "".join(sorted(held))))
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
-    final_ens = (ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
-                           source)[0] if changed else base_ens)
-    final_job = judging.submit(dg.where_table, runs, final_ens) if changed else None
+    final_sims = None
+    if changed:
+        final_ens = ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
+                              source)[0]
+        final_sims = [sim_obs(final_ens[i], r.view) for i, r in enumerate(runs)]
+    final_job = judging.submit(dg.where_table, runs, final_sims) if changed else None
     # (the figures' arrays are computed meanwhile)
-    figures = figure_data(runs, base_ens, final_ens if changed else None, choice)
+    figures = figure_data(runs, base_sims, final_sims, choice)
     where, alpha = where_job.result()
     say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
     where_final = final_job.result()[0] if changed else where
@@ -461,15 +467,16 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dt * np.arange(max_lag + 1), autocorrelation(grid, max_lag)
 
 
-def figure_data(runs, base_ens, final_ens, choice) -> Any:
-    """Arrays for the report's figures."""
+def figure_data(runs, base_sims, final_sims, choice) -> Any:
+    """Arrays for the report's figures (``base_sims``, ``final_sims``: each run's ensemble as
+    :func:`virtualgps.gap.runs.sim_obs`; ``final_sims`` None where nothing changed)."""
     from virtualgps.gap.report import GapFigureData, RunFigureData
 
     figs = []
     for i, r in enumerate(runs):
         v = r.view
-        sims = sim_obs(base_ens[i], v)
-        fin = sim_obs(final_ens[i], v) if final_ens is not None else None
+        sims = base_sims[i]
+        fin = final_sims[i] if final_sims is not None else None
         real_eh = np.hypot(r.err_real[0, :, 0], r.err_real[0, :, 1])
         eq4 = np.hypot(v.real.lat_deg - sims.lat_deg, v.real.lon_deg - sims.lon_deg)
         figs.append(RunFigureData(
@@ -483,16 +490,16 @@ def figure_data(runs, base_ens, final_ens, choice) -> Any:
             final_err_h_m=None if fin is None else _err_h(v, fin),
             final_sats_used=None if fin is None else fin.sats_used,
         ))
-    az, el, dis = _sky_points(runs, base_ens)
+    az, el, dis = _sky_points(runs, base_sims)
     # autocorrelation: the longest run
     k = int(np.argmax([r.view.t_unix_s.size for r in runs]))
     v = runs[k].view
     lags, real_acf = _acf(v, runs[k].err_real[0, :, :2])
-    sim_err = errors_enu(v, sim_obs(base_ens[k], v))
+    sim_err = errors_enu(v, base_sims[k])
     sim_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in sim_err])
     final_acf = None
-    if final_ens is not None:
-        fe = errors_enu(v, sim_obs(final_ens[k], v))
+    if final_sims is not None:
+        fe = errors_enu(v, final_sims[k])
         final_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in fe])
     steps = choice.full.steps if choice is not None else []
     labels = ["baseline"] + [f"+{s['name']}" for s in steps]
@@ -512,15 +519,16 @@ def _pad(x: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _sky_points(runs, ens) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sky_points(runs, sims_of_runs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One point per satellite pass (a PRN's contiguous comparable epochs in a run): its
-    median direction and real minus simulated tracked share."""
+    median direction and real minus simulated tracked share (``sims_of_runs``: each run's
+    ensemble as :func:`virtualgps.gap.runs.sim_obs`)."""
     az, el, dis = [], [], []
     for i, r in enumerate(runs):
         v = r.view
         if not (v.assess["gsv"] and v.assess["cn0"]):
             continue
-        sims = sim_obs(ens[i], v)
+        sims = sims_of_runs[i]
         for j in range(v.prn.size):
             ok = v.sat_ok[:, j]
             if not ok.any():
