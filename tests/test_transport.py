@@ -48,6 +48,19 @@ def read_for(fd: int, duration_s: float, until: int | None = None) -> bytes:
     return bytes(data)
 
 
+def drain(fd: int) -> bytes:
+    """Everything readable on ``fd`` now, without waiting."""
+    data = bytearray()
+    while True:
+        try:
+            got = os.read(fd, 65536)
+        except BlockingIOError:
+            return bytes(data)
+        if not got:
+            return bytes(data)
+        data += got
+
+
 def first_marker(data: bytes) -> int:
     match = SENTENCE.search(data)
     assert match, f"no complete sentence in {data[:80]!r}"
@@ -78,11 +91,50 @@ def test_a_fleet_device_hands_every_epoch_to_a_reading_client_at_once(tmp_path: 
             if not SENTENCE.search(got) or first_marker(got) != i:
                 waited.append(i)
             loop.wait(t0 + 0.1)
-            read_for(fd, 0.0)
+            drain(fd)
         assert waited == []
     finally:
         os.close(fd)
         loop.close()
+
+
+def test_a_fleet_devices_client_that_stops_reading_resumes_with_recent_epochs(tmp_path: Path):
+    # A fleet's device measures what its client left unread when writing an epoch at once, and
+    # a measurement finding everything read stands in for the step's next one: a client that
+    # read everything and then stopped must still have its stale output discarded.
+    from virtualgps.run.fleet.ptyloop import PtyLoop
+
+    max_backlog_s, period_s = 0.5, 0.05
+    loop = PtyLoop()
+    dev = PtyDevice(tmp_path / "gps0", baud=115200, threaded=False, max_backlog_s=max_backlog_s)
+    loop.add(dev)
+    fd = open_client(tmp_path / "gps0", os.O_RDONLY)
+    try:
+        deadline = time.monotonic() + 2.0
+        while not dev.reader_attached and time.monotonic() < deadline:
+            loop.wait(time.monotonic() + 0.05)
+        assert dev.reader_attached
+        written_at: dict[int, float] = {}
+        next_s = time.monotonic()
+        for i in range(60):  # 3 s of 200-byte epochs at 20 Hz; read for the first second only
+            written_at[i] = time.monotonic()
+            dev.write_epoch(epoch(i, 200))
+            next_s += period_s
+            loop.wait(next_s)
+            if i < 20:
+                drain(fd)
+        t_read = time.monotonic()
+        data = b""
+        while time.monotonic() < t_read + 0.3:  # (the loop writes what the flush put back)
+            loop.wait(time.monotonic() + 0.01)
+            data += drain(fd)
+    finally:
+        os.close(fd)
+        loop.close()
+    marker = first_marker(data)
+    assert marker > 40, f"read epoch {marker} of 0..59: stale output was not discarded"
+    assert t_read - written_at[marker] < max_backlog_s + 0.3
+    assert dev.kernel_flushes >= 1
 
 
 @pytest.fixture
