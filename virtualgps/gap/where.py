@@ -18,6 +18,7 @@ better, about 0.1 under the null.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -600,9 +601,9 @@ def gap_score(judged: dict[str, tuple[float, Judged]],
     for m, (real, j) in judged.items():
         r = ref.get(m) if ref is not None else None
         d = distance_against(m, real, j, r[1] if r is not None else None)
-        if np.isfinite(d):
+        if math.isfinite(d):
             parts[m] = d
-    return (float(np.mean(list(parts.values()))) if parts else float("nan")), parts
+    return (sum(parts.values()) / len(parts) if parts else float("nan")), parts
 
 
 def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
