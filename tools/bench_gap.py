@@ -68,7 +68,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--seeds", type=int, default=50)
-    ap.add_argument("--workers", default="1,2", help="worker counts, comma-separated")
+    ap.add_argument("--workers", default="1,2",
+                    help="worker counts, comma-separated ('': only the modelled ones)")
     ap.add_argument("--dask", help="a running Dask scheduler for every run")
     ap.add_argument("--dask-local", action="store_true",
                     help="also run each worker count on a local Dask cluster of that size")
@@ -82,7 +83,7 @@ def main() -> None:
         scene="none", tle=str(data / "magdeburg-campus" / "tle" / "gps-ops.2017-03-26.tle.txt"),
         profile="usarsim")
     first = None
-    for n in (int(w) for w in args.workers.split(",")):
+    for n in (int(w) for w in args.workers.split(",") if w):
         kinds = [("local", args.dask)] + ([("dask", None)] if args.dask_local else [])
         for kind, address in kinds:
             cluster = None
