@@ -65,7 +65,7 @@ _MAX_CHUNK_BYTES = 1024
 # count exact, so the backlog and the age of unread output are known, not guessed. Between
 # measurements what was written counts as unread, so the cap also sets how often a fleet's
 # device opens its slave to measure: 2048 let three 650-byte epochs at most go between two
-# measurements, 3072 four or five (300 receivers at 10 Hz: 4.5 -> 2.6 slave opens per device
+# measurements, 3072 four (300 receivers at 10 Hz: 4.5 -> 2.6 slave opens per device
 # and second, counted with strace -c), 1 KiB still short of the line discipline's buffer.
 _KERNEL_CAP_BYTES = 3072
 
