@@ -5,6 +5,7 @@ Timing tolerances are loose (machines under load), but every test runs in a few 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import select
@@ -67,15 +68,14 @@ def first_marker(data: bytes) -> int:
     return int(match.group(1))
 
 
-def test_a_fleet_device_hands_every_epoch_to_a_reading_client_at_once(tmp_path: Path):
-    # A device its owner steps (a fleet's) writes an epoch within write_epoch when the line is
-    # idle. What the client left unread is bounded by the bytes written since the last
-    # measurement; past the cap the epoch used to wait for the loop's next step: every fourth
-    # epoch of a 10 Hz fleet came 20-30 ms late although the client read everything.
+@contextlib.contextmanager
+def fleet_device(tmp_path: Path, **kwargs):
+    """A device stepped by a :class:`PtyLoop` (as a fleet's are), with a reading client
+    attached: yields (loop, device, client fd)."""
     from virtualgps.run.fleet.ptyloop import PtyLoop
 
     loop = PtyLoop()
-    dev = PtyDevice(tmp_path / "gps0", baud=115200, threaded=False, chunk_s=0.1)
+    dev = PtyDevice(tmp_path / "gps0", baud=115200, threaded=False, **kwargs)
     loop.add(dev)
     fd = open_client(tmp_path / "gps0", os.O_RDONLY)
     try:
@@ -83,7 +83,19 @@ def test_a_fleet_device_hands_every_epoch_to_a_reading_client_at_once(tmp_path: 
         while not dev.reader_attached and time.monotonic() < deadline:
             loop.wait(time.monotonic() + 0.05)
         assert dev.reader_attached
-        waited = []
+        yield loop, dev, fd
+    finally:
+        os.close(fd)
+        loop.close()
+
+
+def test_a_fleet_device_hands_every_epoch_to_a_reading_client_at_once(tmp_path: Path):
+    # A device its owner steps (a fleet's) writes an epoch within write_epoch when the line is
+    # idle. What the client left unread is bounded by the bytes written since the last
+    # measurement; past the cap the epoch used to wait for the loop's next step: every fourth
+    # epoch of a 10 Hz fleet came 20-30 ms late although the client read everything.
+    waited = []
+    with fleet_device(tmp_path, chunk_s=0.1) as (loop, dev, fd):
         for i in range(20):
             t0 = time.monotonic()
             dev.write_epoch(epoch(i, 450))
@@ -92,28 +104,15 @@ def test_a_fleet_device_hands_every_epoch_to_a_reading_client_at_once(tmp_path: 
                 waited.append(i)
             loop.wait(t0 + 0.1)
             drain(fd)
-        assert waited == []
-    finally:
-        os.close(fd)
-        loop.close()
+    assert waited == []
 
 
 def test_a_fleet_devices_client_that_stops_reading_resumes_with_recent_epochs(tmp_path: Path):
     # A fleet's device measures what its client left unread when writing an epoch at once, and
     # a measurement finding everything read stands in for the step's next one: a client that
     # read everything and then stopped must still have its stale output discarded.
-    from virtualgps.run.fleet.ptyloop import PtyLoop
-
     max_backlog_s, period_s = 0.5, 0.05
-    loop = PtyLoop()
-    dev = PtyDevice(tmp_path / "gps0", baud=115200, threaded=False, max_backlog_s=max_backlog_s)
-    loop.add(dev)
-    fd = open_client(tmp_path / "gps0", os.O_RDONLY)
-    try:
-        deadline = time.monotonic() + 2.0
-        while not dev.reader_attached and time.monotonic() < deadline:
-            loop.wait(time.monotonic() + 0.05)
-        assert dev.reader_attached
+    with fleet_device(tmp_path, max_backlog_s=max_backlog_s) as (loop, dev, fd):
         written_at: dict[int, float] = {}
         next_s = time.monotonic()
         for i in range(60):  # 3 s of 200-byte epochs at 20 Hz; read for the first second only
@@ -128,9 +127,6 @@ def test_a_fleet_devices_client_that_stops_reading_resumes_with_recent_epochs(tm
         while time.monotonic() < t_read + 0.3:  # (the loop writes what the flush put back)
             loop.wait(time.monotonic() + 0.01)
             data += drain(fd)
-    finally:
-        os.close(fd)
-        loop.close()
     marker = first_marker(data)
     assert marker > 40, f"read epoch {marker} of 0..59: stale output was not discarded"
     assert t_read - written_at[marker] < max_backlog_s + 0.3
