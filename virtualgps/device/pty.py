@@ -540,13 +540,17 @@ class PtyDevice(QueuedLine):
         return [e for start, e in self._in_kernel
                 if start >= first_unread and now_s - e.t_enqueued_s <= self.max_backlog_s]
 
-    def _unread_age_s(self, now_s: float, unread: int) -> float:
-        """Return how long ago the oldest unread byte was written (0 if all was read)."""
+    def _forget_read(self, unread: int) -> None:
+        """Drop the records of bytes the client has read, ``unread`` bytes being left."""
         first_unread = self._sent_total - unread
         while self._sent_log and self._sent_log[0][1] <= first_unread:
             self._sent_log.popleft()
         while self._in_kernel and self._in_kernel[0][0] < first_unread:
             self._in_kernel.popleft()  # (read, or begun: never sent again)
+
+    def _unread_age_s(self, now_s: float, unread: int) -> float:
+        """Return how long ago the oldest unread byte was written (0 if all was read)."""
+        self._forget_read(unread)
         if unread <= 0 or not self._sent_log:
             return 0.0
         return now_s - self._sent_log[0][0]
@@ -603,7 +607,7 @@ class PtyDevice(QueuedLine):
                     if unread is not None:
                         self._kernel_unread = unread
                         if unread == 0:
-                            self._unread_age_s(now_s, 0)  # (forget what was sent and read)
+                            self._forget_read(0)
                             self._measured_s = now_s
                 if idle and self._kernel_unread + n <= _KERNEL_CAP_BYTES:
                     try:

@@ -80,6 +80,7 @@ class UnitPart:
 
 
 def _mean(x: list[float]) -> float:
+    """The mean of a short, non-empty list (plain Python: see :meth:`Simulator.gap`)."""
     return sum(x) / len(x)
 
 
@@ -296,7 +297,7 @@ class Simulator:
         g = [x for x in g if math.isfinite(x)]
         # (plain Python on these short lists: numpy's per-call cost was a tenth of a
         # diagnosis's serial time, some 40,000 means)
-        return sum(g) / len(g) if g else float("nan")
+        return _mean(g) if g else float("nan")
 
     def parts(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
               ) -> dict[str, float]:
