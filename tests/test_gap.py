@@ -336,6 +336,7 @@ def test_gsdc_drive_without_gsv_reports_what_it_cannot_assess(shared_data, tmp_p
 
     assert "At a glance" in html and "How to read the gap score" in html
     assert re.search(r"<td>CEP50</td><td>[0-9.]+ m</td>", html)
+    assert re.search(r"<td>smoothing</td><td>[0-9.]+ s</td>", html)  # (a delay's or a filter's)
     assert "the fixes lag the truth by" in html
     widths = _rendered_widths(tmp_path / "gsdc" / "report.html", tmp_path)
     assert len(widths) >= 7 and all(w > 100 for w in widths), widths

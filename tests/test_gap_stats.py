@@ -321,43 +321,55 @@ def _turning_track(rng: np.random.Generator, n_s: int = 600):
     return np.arange(float(n_s)), tf, en, heading
 
 
-def test_corner_cut_tells_a_delay_from_a_filter():
-    """Along a track with short turns: a delay keeps the fixes on the path (c ~ 0, whatever
-    its length), a first-order filter cuts the corners (c growing with tau, under the
-    tau^2 / 2 of a steady turn: these turns last seconds and the slope is high-passed); the
-    receiver's own along-track error does not count, and its cross-track noise adds little."""
+def test_delay_and_smoothing_tell_a_delay_from_a_filter():
+    """Along a track with short turns: a delay keeps the track's shape (smoothing ~0, the
+    delay its length), a first-order filter rounds it (smoothing its tau, delay ~0); the
+    receiver's slow error and a bias do not count, white noise adds little; every seed of a
+    stack is fitted as if alone; a straight road at constant speed cannot tell them apart."""
     from virtualgps import geodesy
 
     rng = np.random.default_rng(1)
-    t, tf, en, heading = _turning_track(rng)
+    t, tf, en, _ = _turning_track(rng)
     pos = np.stack([np.interp(t, tf, en[:, a]) for a in (0, 1)], 1)
-    h = np.interp(t, tf, heading)
-    vel = np.stack([15 * np.sin(h), 15 * np.cos(h), 0 * t], 1)
     lat, lon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
                                            np.zeros(t.size), pos[:, 0], pos[:, 1])
     ok = (t > 25) & (t < t[-1] - 25)
 
-    def cut(fix_en: np.ndarray) -> float:
-        err = np.zeros((1, t.size, 3))
-        err[0, :, :2] = fix_en - pos
-        return float(motion.corner_cut_s2(err, lat, lon, t, vel, ok)[0])
+    def err_of(fix_en: np.ndarray) -> np.ndarray:
+        err = np.zeros((t.size, 3))
+        err[:, :2] = fix_en - pos
+        return err
 
-    for lag in (1.0, 3.0):
-        assert abs(cut(np.stack([np.interp(t - lag, tf, en[:, a]) for a in (0, 1)], 1))) < 0.1
-    cuts = []
-    for tau in (1.0, 2.5):
-        y = en.copy()
-        a = 1 - math.exp(-0.01 / tau)
-        for i in range(1, len(tf)):
-            y[i] = y[i - 1] + a * (en[i] - y[i - 1])
-        cuts.append(cut(np.stack([np.interp(t, tf, y[:, c]) for c in (0, 1)], 1)))
-    assert 0.15 < cuts[0] and 0.5 < cuts[1] < 2.5 ** 2 / 2  # (under a steady turn's tau^2 / 2)
-    assert cuts[1] > 2 * cuts[0]
-    along = pos + 3.0 * np.stack([np.sin(h), np.cos(h)], 1) * rng.normal(size=(t.size, 1))
-    assert abs(cut(along)) < 0.1
-    assert abs(cut(pos + rng.normal(0, 1.0, pos.shape))) < 0.3
-    straight = np.zeros((1, t.size, 3))  # a straight road has no corners to tell by
-    assert math.isnan(motion.corner_cut_s2(straight, lat, lon, t, vel * 0 + [0, 15, 0], ok)[0])
+    def fit(*errs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return motion.delay_smoothing_s(np.stack(errs), lat, lon, t, ok)
+
+    cases = []
+    for lag in (0.7, 3.0):
+        cases.append((lag, 0.0, err_of(np.stack([np.interp(t - lag, tf, en[:, a])
+                                                 for a in (0, 1)], 1))))
+    for tau in (1.0, 2.5):  # a receiver's filter at its 1 Hz epochs (as nav_filter)
+        y = pos.copy()
+        a = 1 - math.exp(-1.0 / tau)
+        for i in range(1, t.size):
+            y[i] = y[i - 1] + a * (pos[i] - y[i - 1])
+        cases.append((0.0, tau, err_of(y)))
+    delay, tau = fit(*(c[2] for c in cases))
+    for (want_delay, want_tau, _), got_delay, got_tau in zip(cases, delay, tau, strict=True):
+        assert got_delay == pytest.approx(want_delay, abs=0.15)
+        assert got_tau == pytest.approx(want_tau, abs=0.15)
+    slow = np.zeros((t.size, 3))  # a receiver's error of minutes, and a bias
+    slow[:, :2] = [4.0, -3.0] + 5.0 * np.stack([np.sin(t / 300), np.cos(t / 200)], 1)
+    noisy = cases[3][2] + slow + rng.normal(0, 1.0, (t.size, 3))
+    d2, t2 = fit(cases[0][2] + slow, noisy)
+    assert d2[0] == pytest.approx(0.7, abs=0.15) and t2[0] == pytest.approx(0.0, abs=0.15)
+    assert t2[1] == pytest.approx(2.5, abs=0.6) and d2[1] < 0.5
+    alone = fit(noisy)
+    assert alone[0][0] == pytest.approx(d2[1], abs=1e-9) and alone[1][0] == t2[1]
+    north = np.tile([0.0, 1.0], (t.size, 1)) * t[:, None] * 15.0  # a straight road
+    slat, slon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
+                                             np.zeros(t.size), north[:, 0], north[:, 1])
+    flat = np.zeros((1, t.size, 3))
+    assert np.isnan(motion.delay_smoothing_s(flat, slat, slon, t, ok)).all()
 
 
 def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():

@@ -13,7 +13,7 @@ from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.solution import dop, select_used, usarsim_sigma_m
-from virtualgps.receiver.state import ReceiverState
+from virtualgps.receiver.state import ReceiverRows, ReceiverState
 
 GEOREF = Georef(52.14, 11.64, 100.0)
 
@@ -406,9 +406,11 @@ def test_latency_reports_where_the_antenna_was():
 
 def test_latency_keeps_the_fix_on_the_path_of_a_turn_and_runs_epoch_by_epoch_alike():
     """A delay puts the fix where the antenna was, on its path: circling at 10 m/s on 50 m
-    (2 m/s^2), 2.5 s late, the fix stays within 0.3 m of the circle (to first order in the
-    velocity alone it ran 6.2 m outside), 25 m back along it. One epoch at a time gives the
-    same fixes, across a gap in the poses (after which the first epoch is first order)."""
+    (2 m/s^2), 2.5 s late, the fix stays within 0.3 m of the circle (the chords between 1 Hz
+    poses sag 0.25 m; to first order in the velocity alone it ran 6.2 m outside), 25 m back
+    along it, and after a gap in the poses too (on the chord across it before). Epochs whose
+    t - L precedes the first pose are moved back along their velocity. One epoch at a time,
+    alone or as a row of receivers side by side, gives the same fixes."""
     radius, speed, lat_s, n = 50.0, 10.0, 2.5, 40
     prof = load_profile("ideal", {"latency": {"enabled": True, "latency_s": lat_s}})
     sky = FixedSky(np.linspace(0, 300, 7), np.linspace(10, 80, 7))
@@ -423,19 +425,24 @@ def test_latency_keeps_the_fix_on_the_path_of_a_turn_and_runs_epoch_by_epoch_ali
     batch, _ = simulate(rx, t, pos, vel, valid, ReceiverState(), np.random.default_rng(3))
     fix = pos + _enu_errors(batch)
     off_path = np.abs(np.hypot(fix[:, 0], fix[:, 1]) - radius)
-    steady = valid & np.roll(valid, 1)
-    steady[0] = False
-    assert off_path[steady].max() < 0.3
-    assert off_path[21] > 5.0  # the first epoch after the gap: no velocity to difference
-    back = np.hypot(*(fix - pos)[steady, :2].T)
+    known = valid & (t - lat_s >= t[0])
+    across = (t - lat_s > t[19]) & (t - lat_s < t[21])  # on the chord over the missing pose
+    assert known[21] and off_path[known & ~across].max() < 0.3
+    assert off_path[known & across].max() < radius * (1 - np.cos(w))  # its sag
+    assert off_path[0] == pytest.approx(radius * (np.hypot(1.0, w * lat_s) - 1.0), abs=1e-3)
+    back = np.hypot(*(fix - pos)[known, :2].T)
     np.testing.assert_allclose(back, 2 * radius * np.sin(w * lat_s / 2), rtol=0.02)
     state, rng = ReceiverState(), np.random.default_rng(3)
+    rows = ReceiverRows.stack([ReceiverState()], [np.random.default_rng(3)], prof, 7)
     for i in range(n):
         one, state = simulate(rx, t[i:i + 1], pos[i:i + 1], vel[i:i + 1], valid[i:i + 1],
                               state, rng)
+        row, rows = simulate(rx, t[i:i + 1], pos[i:i + 1], vel[i:i + 1], valid[i:i + 1],
+                             rows, rng)
         if valid[i]:
-            assert one.lat_deg[0] == pytest.approx(batch.lat_deg[i], abs=1e-12)
-            assert one.lon_deg[0] == pytest.approx(batch.lon_deg[i], abs=1e-12)
+            for got in (one, row):
+                assert got.lat_deg[0] == pytest.approx(batch.lat_deg[i], abs=1e-12)
+                assert got.lon_deg[0] == pytest.approx(batch.lon_deg[i], abs=1e-12)
 
 
 def test_nav_filter_lags_a_moving_antenna_by_the_first_order_steady_state():

@@ -89,7 +89,7 @@ METRICS: dict[str, MetricSpec] = {
     "autocorr_s": MetricSpec("log", 2.0, 2.0, 0.05, nan_high=True, unit="s"),
     "error_step_m": MetricSpec("log", 0.1, 0.05, 0.05, unit="m"),
     "lag_s": MetricSpec("lin", floor=0.1, unit="s"),
-    "corner_cut_s2": MetricSpec("lin", floor=0.1, unit="s²"),
+    "smoothing_s": MetricSpec("log", 0.5, 0.1, 0.05, unit="s"),
     "frozen_fraction": MetricSpec("lin", floor=0.02),
     "sats_used_mean": MetricSpec("log", 0.5, 0.5, 0.0, unit="satellites"),
     "used_changes_per_min": MetricSpec("log", 0.5, 0.1, 0.05, unit="/min"),

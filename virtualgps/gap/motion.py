@@ -1,5 +1,5 @@
-"""How the fixes follow a moving truth: their lag behind it, and whether they keep to its path
-or cut its corners (what tells an output delay from a navigation filter, DESIGN 7.5).
+"""How the fixes follow a moving truth: their lag behind it, and whether they follow its motion
+delayed or smoothed (what tells an output delay from a navigation filter, DESIGN 7.5).
 
 All functions take the fixes' errors about the truth for ``s`` seeds over ``n`` epochs, metres
 ENU, and the truth's motion at those epochs; they return one value per seed (NaN where the
@@ -50,114 +50,126 @@ def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) ->
     return out
 
 
-CUT_WINDOW_S = 20.0  # a fix is placed on the truth's path within this time of its epoch
-CUT_MIN_LAT_RMS_MPS2 = 0.1  # the least lateral acceleration (rms) that shows a rounded corner
-# The distance to the path less its mean over +-CUT_HIGH_PASS_S: a receiver's slow error (range
-# errors of minutes) leaves the turns' seconds-long cuts alone and no longer hides them. On the
-# GSDC drive against holux-m1000 it halves the seeds' spread of the slope (0.9 -> 0.3-0.4 s^2),
-# and the phone's own slow cross-track wander no longer makes its fixes, delayed by 2.7 s, look
-# filtered (1.10 -> 0.12 s^2; filtered with tau 2.7 s: 0.71, the simulated filter 0.74).
-CUT_HIGH_PASS_S = 15.0
+# The delay and smoothing a log's fixes show (:func:`delay_smoothing_s`): the filter time
+# constants tried (0.1 s apart where receivers' filters lie, coarser beyond), the longest delay
+# (a log-vs-truth clock offset of seconds is a delay too), and the least change of the truth's
+# velocity (rms per second, m/s) that tells one from the other: at a constant velocity a
+# first-order filter of tau and a delay of tau move the fixes alike.
+SMOOTH_TAU_S = tuple(round(0.1 * k, 1) for k in range(21)) + (
+    2.25, 2.5, 2.75, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0)
+SMOOTH_MAX_DELAY_S = 8.0
+SMOOTH_MIN_ACC_RMS_MPS2 = 0.1
 
 
-def path_offset_m(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray, truth_lon_deg: np.ndarray,
-                  t_unix_s: np.ndarray, epochs: np.ndarray) -> np.ndarray:
-    """Each fix's signed distance to the truth's path (left of the direction of travel
-    positive): to the nearest of the path's chords, about one second long, within
-    CUT_WINDOW_S of its epoch. Unlike the error, it does not see where along the path the fix
-    lies, so a delay (the fix on the path, some way back) leaves it at the receiver's own
-    cross-track error.
-
-    err_enu_m : (s, n, 3) fixes minus truth, metres; truth_lat_deg, truth_lon_deg,
-    t_unix_s : (n,); epochs : (n,) bool, those to measure; returns (s, n) metres (NaN
-    elsewhere)
-    """
-    n = t_unix_s.size
-    out = np.full(err_enu_m.shape[:2], np.nan)
-    idx = np.flatnonzero(epochs)
-    if idx.size == 0:
+def _local_en_m(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
+    """(n, 2) metres east and north of the first finite point (a local plane: the few km of
+    a drive), NaN where unknown."""
+    ok = np.isfinite(lat_deg) & np.isfinite(lon_deg)
+    out = np.full((lat_deg.size, 2), np.nan)
+    if not ok.any():
         return out
+    i = int(np.argmax(ok))
+    m_m, n_m = geodesy.radii_of_curvature_m(lat_deg[i:i + 1])
+    out[:, 0] = np.radians(lon_deg - lon_deg[i]) * float(n_m[0]) * math.cos(math.radians(
+        lat_deg[i]))
+    out[:, 1] = np.radians(lat_deg - lat_deg[i]) * float(m_m[0])
+    return out
+
+
+def _low_pass(x: np.ndarray, dt_s: float, tau_s: float) -> np.ndarray:
+    """(m, 2) a first-order low-pass of time constant tau (0: x itself) at a fixed step."""
+    if tau_s <= 0:
+        return x
+    from scipy.signal import lfilter
+
+    a = math.exp(-dt_s / tau_s)
+    y = lfilter([1.0 - a], [1.0, -a], x - x[0], axis=0)
+    return y + x[0]
+
+
+def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
+                      truth_lon_deg: np.ndarray, t_unix_s: np.ndarray, epochs: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """How the fixes follow the truth's motion: the delay L and the first-order smoothing tau
+    whose response to the truth (its positions low-passed with tau, then delayed by L) best
+    matches the fixes' own motion, epoch to epoch. What tells a delay from a navigation
+    filter (DESIGN 7.5): at a constant velocity both lag by their time, but through turns,
+    stops and starts a delay keeps the track's shape (tau 0) and a filter rounds it (tau its
+    time constant). The fit is on the fixes' steps (differences of consecutive epochs at
+    about 1 Hz), so a receiver's slow error (minutes) and any bias drop out, and its white
+    noise, uncorrelated with the truth's motion, widens the estimate without moving it.
+
+    Least squares over the grid of :data:`SMOOTH_TAU_S` and every delay up to
+    :data:`SMOOTH_MAX_DELAY_S` (whole epochs, and the fraction between two in closed form:
+    the delayed truth is interpolated linearly between epochs, as a delay's fixes are), for
+    every seed at once: sums over epochs as matrix products. NaN with fewer than 30 steps,
+    or where the truth's velocity changes by less than SMOOTH_MIN_ACC_RMS_MPS2 (rms per
+    second).
+
+    err_enu_m : (s, n, 3) fixes minus truth, metres; truth_lat_deg, truth_lon_deg, t_unix_s :
+    (n,); epochs : (n,) bool, those to measure; returns (delay (s,) s, tau (s,) s)
+    """
+    s = err_enu_m.shape[0]
+    nan = (np.full(s, np.nan), np.full(s, np.nan))
     dt = epoch_step_s(t_unix_s)
-    stride = max(1, int(round(1.0 / dt)))
-    reach = int(math.ceil(CUT_WINDOW_S / dt))
-    lat_rad, lon_rad = np.radians(truth_lat_deg), np.radians(truth_lon_deg)
-    m_m, n_m = geodesy.radii_of_curvature_m(truth_lat_deg[idx])
-    lat0, lon0 = lat_rad[idx], lon_rad[idx]
-    east_per_rad = n_m * np.cos(lat0)
+    stride = max(1, int(round(1.0 / dt)))  # (about 1 Hz: the steps of a 10 Hz log are noise)
+    idx = np.arange(0, t_unix_s.size, stride)
+    t = t_unix_s[idx]
+    step = dt * stride
+    truth = _local_en_m(truth_lat_deg[idx], truth_lon_deg[idx])
+    known = np.isfinite(truth).all(axis=1)
+    if known.sum() < 31:
+        return nan
+    # the truth where unknown: interpolated (those steps are not counted; the filter runs on)
+    truth = np.stack([np.interp(t, t[known], truth[known, a]) for a in (0, 1)], axis=1)
+    fix = truth[None] + err_enu_m[:, idx, :2]
+    d_fix = np.diff(fix, axis=1)  # (s, m, 2)
+    ok = (epochs[idx] & known)[None] & np.isfinite(fix).all(axis=2)
+    regular = known[1:] & known[:-1] & (np.abs(np.diff(t) - step) < 0.25 * step)
+    n_shift = int(math.ceil(SMOOTH_MAX_DELAY_S / step)) + 1  # whole-epoch delays 0..n_shift
+    # a step counts where the truth's steps as far back as the longest delay are known and
+    # regular (a model of a gap in the truth would be no model)
+    bad = np.concatenate((np.ones(n_shift, int), (~regular).astype(int)))
+    back = np.convolve(bad, np.ones(n_shift + 1, int))[n_shift:n_shift + regular.size] == 0
+    w = ok[:, 1:] & ok[:, :-1] & back[None]
+    if w.sum(axis=1).max() < 30:
+        return nan
+    acc = np.diff(np.diff(truth, axis=0), axis=0) / step ** 2  # (m - 1, 2) at the steps' ends
+    wa = w[:, 1:] & w[:, :-1]
+    acc_ms = (wa * (acc ** 2).sum(axis=1)[None]).sum(axis=1) / np.maximum(wa.sum(axis=1), 1)
+    d_fix = np.where(w[..., None], d_fix, 0.0)
+    n_tau = len(SMOOTH_TAU_S)
+    m = d_fix.shape[1]
+    # each tau's model steps at every whole-epoch delay: (m, 2) columns
+    shifted = np.zeros((n_tau, n_shift + 1, m, 2))
+    for i, tau in enumerate(SMOOTH_TAU_S):
+        steps = np.diff(_low_pass(truth, step, tau), axis=0)
+        for j in range(n_shift + 1):
+            shifted[i, j, j:] = steps[:m - j]
+    flat = shifted.reshape(n_tau * (n_shift + 1), 2 * m)
+    same = (shifted * shifted).sum(axis=3).reshape(n_tau * (n_shift + 1), m)
+    nxt = (shifted[:, :-1] * shifted[:, 1:]).sum(axis=3).reshape(n_tau * n_shift, m)
+    rows = np.arange(s)
 
-    def rel(j: int) -> np.ndarray:  # (m, 2) truth at epoch k + j less at k, local metres
-        i = np.clip(idx + j, 0, n - 1)
-        return np.stack([east_per_rad * (lon_rad[i] - lon0), m_m * (lat_rad[i] - lat0)], axis=1)
-
-    f = err_enu_m[:, idx, :2]
-    best = np.full(f.shape[:2], np.inf)
-    signed = np.full(f.shape[:2], np.nan)
-    a = rel(-reach)
-    for j in range(-reach, reach, stride):
-        b = rel(j + stride)
-        seg = b - a
-        len2 = (seg * seg).sum(axis=1)
-        fa = f - a[None]
+    def fit(wt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(tau index, whole delay, fraction) per seed minimising the weighted squares."""
+        b = ((wt[..., None] * d_fix).reshape(s, 2 * m) @ flat.T).reshape(
+            s, n_tau, n_shift + 1)  # sum w D.P_j
+        c = (wt @ same.T).reshape(s, n_tau, n_shift + 1)  # sum w |P_j|^2
+        x = (wt @ nxt.T).reshape(s, n_tau, n_shift)  # sum w P_j.P_(j+1)
+        # the fraction f between delays j and j + 1 minimising
+        # -2 (1-f) B_j - 2 f B_(j+1) + (1-f)^2 C_j + 2 f (1-f) X_j + f^2 C_(j+1)
+        bj, bk, cj, ck = b[..., :-1], b[..., 1:], c[..., :-1], c[..., 1:]
+        curv = cj - 2 * x + ck
         with np.errstate(invalid="ignore", divide="ignore"):
-            u = np.clip((fa * seg[None]).sum(axis=2) / len2[None], 0.0, 1.0)
-        d = f - (a[None] + u[..., None] * seg[None])
-        dist = np.hypot(d[..., 0], d[..., 1])
-        side = np.sign(seg[None, :, 0] * fa[..., 1] - seg[None, :, 1] * fa[..., 0])
-        closer = (dist < best) & (len2 > 0.01)[None]  # (a chord of under 0.1 m has no side)
-        best = np.where(closer, dist, best)
-        signed = np.where(closer, side * dist, signed)
-        a = b
-    out[:, idx] = signed
-    return out
+            f = np.clip(np.where(curv > 0, (bk - bj + cj - x) / curv, 0.0), 0.0, 1.0)
+        cost = (-2 * (1 - f) * bj - 2 * f * bk + (1 - f) ** 2 * cj + 2 * f * (1 - f) * x
+                + f ** 2 * ck)  # (s, n_tau, n_shift): the sum of squares less sum w |D|^2
+        i_tau, j = np.unravel_index(np.argmin(cost.reshape(s, -1), axis=1), cost.shape[1:])
+        return i_tau, j, f[rows, i_tau, j]
 
-
-def corner_cut_s2(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray, truth_lon_deg: np.ndarray,
-                  t_unix_s: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray
-                  ) -> np.ndarray:
-    """How far the fixes cut the truth's corners, per unit of lateral acceleration: the slope
-    c of the fixes' distance to the truth's path (:func:`path_offset_m`, toward the centre of
-    the turn positive, less its mean over +-CUT_HIGH_PASS_S) on the truth's lateral
-    acceleration, in s^2. What tells a filter from a delay: a first-order filter of time
-    constant tau, turning steadily, runs inside the path by a tau^2 / 2 (c = tau^2 / 2; less
-    in turns of a few seconds, and after the high-pass), while a delay (or a log-vs-truth
-    clock offset) keeps the fixes on it (c = 0). NaN where the truth's lateral
-    acceleration is under CUT_MIN_LAT_RMS_MPS2 rms, or with fewer than 30 epochs.
-
-    err_enu_m : (s, n, 3); truth_lat_deg, truth_lon_deg, t_unix_s : (n,); vel_enu_mps :
-    (n, 3); epochs : (n,) bool; returns (s,) s^2
-    """
-    out = np.full(err_enu_m.shape[0], np.nan)
-    speed = np.hypot(vel_enu_mps[:, 0], vel_enu_mps[:, 1])
-    acc = acceleration_enu_mps2(t_unix_s, vel_enu_mps)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lateral = (vel_enu_mps[:, 0] * acc[:, 1] - vel_enu_mps[:, 1] * acc[:, 0]) / speed
-    epochs = epochs & np.isfinite(lateral) & (speed > 0)
-    if epochs.sum() < 30:
-        return out
-    d = path_offset_m(err_enu_m, truth_lat_deg, truth_lon_deg, t_unix_s, epochs)
-    for i, di in enumerate(d):
-        ok = epochs & np.isfinite(di)
-        if ok.sum() < 30:
-            continue
-        x = lateral[ok] - lateral[ok].mean()
-        sxx = float(np.sum(x * x))
-        if sxx < ok.sum() * CUT_MIN_LAT_RMS_MPS2 ** 2:
-            continue
-        out[i] = float(np.sum(x * _high_pass(t_unix_s[ok], di[ok], CUT_HIGH_PASS_S))) / sxx
-    return out
-
-
-def _high_pass(t_s: np.ndarray, y: np.ndarray, half_s: float) -> np.ndarray:
-    """y less its mean over the samples within +-half_s of each (t sorted)."""
-    cs = np.concatenate(([0.0], np.cumsum(y)))
-    lo = np.searchsorted(t_s, t_s - half_s, side="left")
-    hi = np.searchsorted(t_s, t_s + half_s, side="right")
-    return y - (cs[hi] - cs[lo]) / (hi - lo)
-
-
-def acceleration_enu_mps2(t_unix_s: np.ndarray, vel_enu_mps: np.ndarray) -> np.ndarray:
-    """(n, 3) the truth's acceleration by central differences of its velocity (NaN for a run
-    of fewer than three epochs)."""
-    if t_unix_s.size < 3:
-        return np.full(vel_enu_mps.shape, np.nan)
-    return np.gradient(vel_enu_mps, t_unix_s, axis=0)
+    i_tau, j, frac = fit(w.astype(float))
+    delay = (j + frac) * step
+    tau = np.asarray(SMOOTH_TAU_S)[i_tau]
+    bad = (w.sum(axis=1) < 30) | (acc_ms < SMOOTH_MIN_ACC_RMS_MPS2 ** 2)
+    return np.where(bad, np.nan, delay), np.where(bad, np.nan, tau)

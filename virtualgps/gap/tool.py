@@ -384,7 +384,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
 
 
 HEADLINE = (("cep50_m", "CEP50", "m"), ("r95_m", "R95", "m"), ("lag_s", "lag", "s"),
-            ("sats_used_mean", "satellites used", ""), ("hdop_median", "HDOP", ""),
+            ("smoothing_s", "smoothing", "s"), ("sats_used_mean", "satellites used", ""), ("hdop_median", "HDOP", ""),
             ("fix_fraction", "fix fraction", ""), ("ttff_s", "first fix", "s"))
 
 

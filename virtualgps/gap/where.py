@@ -43,7 +43,7 @@ from virtualgps.gap.metrics import (
     median_position,
     to_regular_grid,
 )
-from virtualgps.gap.motion import corner_cut_s2, epoch_step_s, lag_s
+from virtualgps.gap.motion import delay_smoothing_s, epoch_step_s, lag_s
 
 STARTUP_S = 120.0  # the start-up segment: this long after power-on
 MOVING_MPS = 0.3  # truth speed above which an epoch is "moving"
@@ -531,11 +531,11 @@ def segment_stats(
         if moving.sum() >= 30 and wanted("lag_s"):
             put("lag_s", lag_s(err_real, view.vel_enu_mps, moving),
                 lag_s(err_sim, view.vel_enu_mps, moving))
-        if moving.sum() >= 30 and wanted("corner_cut_s2"):
-            # (real and seeds in one call: the path's chords are made once)
-            cut = corner_cut_s2(np.concatenate((err_real, err_sim)), view.truth_lat_deg,
-                                view.truth_lon_deg, t, view.vel_enu_mps, moving)
-            put("corner_cut_s2", cut[:1], cut[1:])
+        if moving.sum() >= 30 and wanted("smoothing_s"):
+            # (real and seeds in one call: the truth's responses are made once)
+            _, tau = delay_smoothing_s(np.concatenate((err_real, err_sim)), view.truth_lat_deg,
+                                       view.truth_lon_deg, t, moving)
+            put("smoothing_s", tau[:1], tau[1:])
         if wanted("eq4_deg"):
             def eq4(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
                 return row_quantile(_eq4_deg(a_lat, a_lon, b_lat, b_lon), 0.5)

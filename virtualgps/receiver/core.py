@@ -256,7 +256,8 @@ def simulate(
         decay = np.exp(-since / prof.cold_start.converge_tau_s)[:, None]
         biased = err_m + decay * state.start_bias_enu_m
         err_m = np.where(state.has_start_bias[:, None], biased, err_m) if rows else biased
-    err_enu, out_state = output_stage(prof, ant, err_m, vel, dt_s, has_fix, state)
+    err_enu, out_state = output_stage(prof, t, ant, err_m, vel, dt_s, has_fix, pose_valid,
+                                      state)
     north_m, east_m, up_m = err_enu[:, 1], err_enu[:, 0], err_enu[:, 2]
     if prof.georef == "flat_earth":
         lat, lon = geodesy.flat_earth_offset_deg(sky.lat_deg, sky.lon_deg, east_m, north_m)

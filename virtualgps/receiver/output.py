@@ -112,31 +112,86 @@ def nav_filter(
     return filt, y
 
 
-def _acceleration(vel_enu_mps: np.ndarray, dt_s: np.ndarray, has_fix: np.ndarray,
-                  state: ReceiverState) -> tuple[np.ndarray, np.ndarray | None]:
-    """(n_t, 3) the truth's acceleration by backward differences of its velocity over epochs
-    with a fix at both ends (0 elsewhere: after a gap or at the very first epoch), m/s^2; and
-    the velocity to carry to the next call (one epoch at a time runs like a batch)."""
-    vel = np.asarray(vel_enu_mps, dtype=float)
-    known = np.where(np.asarray(has_fix, dtype=bool)[:, None], vel, np.nan)
-    if isinstance(state, ReceiverRows):  # receivers, one epoch each
-        prev, carry = state.vel_enu_mps, known
-    else:
-        last = state.vel_enu_mps if state.vel_enu_mps is not None else np.full(3, np.nan)
-        prev = np.concatenate((last[None], known[:-1]))
-        carry = known[-1] if known.shape[0] and not np.isnan(known[-1, 0]) else None
-    with np.errstate(invalid="ignore"):
-        acc = (known - prev) / np.asarray(dt_s, dtype=float)[:, None]
-    return np.where(np.isfinite(acc), acc, 0.0), carry
+def delayed_enu_m(
+    t_unix_s: np.ndarray,
+    truth_enu_m: np.ndarray,
+    vel_enu_mps: np.ndarray,
+    known: np.ndarray,
+    latency_s: float,
+    state: ReceiverState,
+) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+    """Where the antenna was ``latency_s`` before each epoch: the truth's positions (those of
+    the batch and those the state carries from before it) interpolated linearly at t - L, as
+    the poses themselves are. A pure output delay keeps the fix on the path, through turns and
+    stops alike (the second-order expansion x - v L + a L^2 / 2 it replaces did not: with the
+    velocity of the pose segment ahead and the acceleration of the one behind, a 0.9 s delay
+    on a 1 Hz drive responded to the turns like a 0.7 s delay behind a 0.6 s filter). Before
+    the first known position: that position, moved back along the epoch's velocity.
+
+    Parameters
+    ----------
+    t_unix_s : (n_t,) UTC seconds
+    truth_enu_m : (n_t, 3) metres, the true antenna positions
+    vel_enu_mps : (n_t, 3) metres per second, the true velocity (0 where unknown)
+    known : (n_t,) bool, epochs whose truth is known (a valid pose)
+    latency_s : the delay L, seconds
+    state : the receiver state before the batch (:class:`ReceiverState`: ``past_t_unix_s``,
+        ``past_enu_m`` the known positions before it; :class:`ReceiverRows`: (n_t, K) and
+        (n_t, K, 3) per receiver, NaN where none)
+
+    Returns
+    -------
+    delayed_enu_m : (n_t, 3) metres
+    state_update : the new ``past_t_unix_s`` and ``past_enu_m``
+    """
+    t = np.asarray(t_unix_s, dtype=float)
+    td = t - latency_s
+    if isinstance(state, ReceiverRows):  # receivers side by side, one epoch each
+        ht = np.concatenate((state.past_t_unix_s, np.where(known, t, np.nan)[:, None]), axis=1)
+        hx = np.concatenate((state.past_enu_m, truth_enu_m[:, None, :]), axis=1)
+        # (the known times of a row increase along it, with NaN where none)
+        before = ht <= td[:, None]
+        k = ht.shape[1]
+        a = np.where(before.any(axis=1), k - 1 - np.argmax(before[:, ::-1], axis=1), -1)
+        after = ht > td[:, None]
+        b = np.where(after.any(axis=1), np.argmax(after, axis=1), -1)
+        rows = np.arange(t.size)
+        ta, tb = ht[rows, a], ht[rows, b]
+        xa, xb = hx[rows, a], hx[rows, b]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = np.clip((td - ta) / (tb - ta), 0.0, 1.0)[:, None]
+        out = np.where(((a >= 0) & (b >= 0))[:, None], xa + w * (xb - xa),
+                       np.where((b >= 0)[:, None], xb + vel_enu_mps * (td - tb)[:, None],
+                                truth_enu_m - vel_enu_mps * latency_s))
+        out = np.where((a >= 0)[:, None] & (b < 0)[:, None], xa, out)
+        keep = np.where(known[:, None], np.arange(1, k), np.arange(k - 1))
+        return out, {"past_t_unix_s": np.take_along_axis(ht, keep, axis=1),
+                     "past_enu_m": np.take_along_axis(hx, keep[..., None], axis=1)}
+    past_t = state.past_t_unix_s if state.past_t_unix_s is not None else np.empty(0)
+    past_x = state.past_enu_m if state.past_enu_m is not None else np.empty((0, 3))
+    ht = np.concatenate((past_t, t[known]))
+    hx = np.concatenate((past_x, np.asarray(truth_enu_m, dtype=float)[known]))
+    if ht.size == 0:
+        return truth_enu_m - vel_enu_mps * latency_s, {"past_t_unix_s": None,
+                                                        "past_enu_m": None}
+    out = np.stack([np.interp(td, ht, hx[:, j]) for j in range(3)], axis=1)
+    early = td < ht[0]
+    if early.any():
+        out[early] = hx[0] + vel_enu_mps[early] * (td[early] - ht[0])[:, None]
+    # what the next batch needs: the positions after ht[-1] - L, and the one before
+    first = max(0, int(np.searchsorted(ht, ht[-1] - latency_s, side="right")) - 1)
+    return out, {"past_t_unix_s": ht[first:], "past_enu_m": hx[first:]}
 
 
 def output_stage(
     prof: Profile,
+    t_unix_s: np.ndarray,
     truth_enu_m: np.ndarray,
     err_enu_m: np.ndarray,
     vel_enu_mps: np.ndarray,
     dt_s: np.ndarray,
     has_fix: np.ndarray,
+    known: np.ndarray,
     state: ReceiverState,
 ) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
     """What the receiver does to its solution before output: ``latency``, ``nav_filter``,
@@ -145,27 +200,28 @@ def output_stage(
     Parameters
     ----------
     prof : profile
+    t_unix_s : (n_t,) UTC seconds
     truth_enu_m : (n_t, 3) metres, true antenna positions, scene ENU
     err_enu_m : (n_t, 3) metres, the solution's error
     vel_enu_mps : (n_t, 3) metres per second, true velocity
     dt_s : (n_t,) seconds since the previous epoch (inf for the very first)
     has_fix : (n_t,) bool
+    known : (n_t,) bool, epochs whose truth is known (a valid pose)
     state : receiver state before the batch
 
     Returns
     -------
     err_enu_m : (n_t, 3) metres, error of the position output
-    state_update : new ``nav_enu_m``, ``hold_enu_m`` and (with ``latency``) ``vel_enu_mps``
+    state_update : new ``nav_enu_m``, ``hold_enu_m`` and (with ``latency``) the truth's
+        past positions
     """
     out = truth_enu_m + err_enu_m
     update: dict[str, np.ndarray | None] = {}
     if prof.latency.enabled:
-        acc, update["vel_enu_mps"] = _acceleration(vel_enu_mps, dt_s, has_fix, state)
-        # Where the antenna was latency_s ago, to second order: x - v L + a L^2 / 2. To first
-        # order alone the fix left the path on the outside of every turn by a L^2 / 2 (3.6 m
-        # at 1 m/s^2 and 2.7 s), which a delay never does: it stays on the path.
-        lat_s = prof.latency.latency_s
-        out = out - vel_enu_mps * lat_s + acc * (0.5 * lat_s * lat_s)
+        then, past = delayed_enu_m(t_unix_s, truth_enu_m, vel_enu_mps, known,
+                                   prof.latency.latency_s, state)
+        update.update(past)
+        out = out - truth_enu_m + then
     if prof.nav_filter.enabled:
         out, update["nav_enu_m"] = nav_filter(
             out, dt_s, has_fix, prof.nav_filter.tau_s, state.nav_enu_m

@@ -35,8 +35,8 @@ class ReceiverState:
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
     nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
     hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
-    vel_enu_mps : (3,) the true velocity at the last epoch, where it had a fix (None: none, or
-        no ``latency``, whose second-order term differences it)
+    past_t_unix_s, past_enu_m : (m,) UTC seconds and (m, 3) metres, the truth's last known
+        positions, as far back as ``latency`` reaches (None: none, or no ``latency``)
     usable_from_t_unix_s : (n_sat,) when each satellite's ephemeris is decoded after a start
         (None: all usable)
     start_bias_enu_m : (3,) metres, the start-up error that decays after the first fix
@@ -57,7 +57,8 @@ class ReceiverState:
     last_alt_hae_m: float = float("nan")
     nav_enu_m: np.ndarray | None = field(default=None, compare=False)
     hold_enu_m: np.ndarray | None = field(default=None, compare=False)
-    vel_enu_mps: np.ndarray | None = field(default=None, compare=False)
+    past_t_unix_s: np.ndarray | None = field(default=None, compare=False)
+    past_enu_m: np.ndarray | None = field(default=None, compare=False)
     usable_from_t_unix_s: np.ndarray | None = field(default=None, compare=False)
     start_bias_enu_m: np.ndarray | None = field(default=None, compare=False)
     fade_db: np.ndarray | None = field(default=None, compare=False)
@@ -66,6 +67,15 @@ class ReceiverState:
     mp_m: np.ndarray | None = field(default=None, compare=False)
     rr_mps: np.ndarray | None = field(default=None, compare=False)
     streams: dict | None = field(default=None, compare=False)
+
+
+def history_len(profile: Profile) -> int:
+    """How many of the truth's past positions a receiver side by side with others keeps for
+    ``latency``: as many epochs at the profile's rate as reach ``latency_s`` back, and two
+    more (0 without ``latency``)."""
+    if not profile.latency.enabled:
+        return 0
+    return int(np.ceil(profile.latency.latency_s * profile.rate_hz - 1e-9)) + 2
 
 
 START_KINDS = ("hot", "warm", "cold")
@@ -112,7 +122,8 @@ class ReceiverRows:
     last_alt_hae_m: np.ndarray
     nav_enu_m: np.ndarray
     hold_enu_m: np.ndarray
-    vel_enu_mps: np.ndarray
+    past_t_unix_s: np.ndarray
+    past_enu_m: np.ndarray
     usable_from_t_unix_s: np.ndarray
     start_bias_enu_m: np.ndarray
     has_start_bias: np.ndarray
@@ -201,6 +212,15 @@ class ReceiverRows:
         ce = profile.correlated_error
         gm_w = n_sat if ce.domain == "range" else 3
 
+        # latency's truth history, the last k known positions of each (NaN before them)
+        k = history_len(profile)
+        past_t, past_x = np.full((len(states), k), np.nan), np.full((len(states), k, 3), np.nan)
+        for i, st in enumerate(states):
+            if k and st.past_t_unix_s is not None:
+                m = min(k, st.past_t_unix_s.size)
+                past_t[i, k - m:] = st.past_t_unix_s[-m:]
+                past_x[i, k - m:] = st.past_enu_m[-m:]
+
         def rows(name: str, width: int, fill, dtype=float) -> np.ndarray:
             out = np.full((len(states), width), fill, dtype)
             for i, st in enumerate(states):
@@ -217,7 +237,8 @@ class ReceiverRows:
             last_alt_hae_m=np.array([st.last_alt_hae_m for st in states], float),
             nav_enu_m=rows("nav_enu_m", 3, np.nan),
             hold_enu_m=rows("hold_enu_m", 3, np.nan),
-            vel_enu_mps=rows("vel_enu_mps", 3, np.nan),
+            past_t_unix_s=past_t,
+            past_enu_m=past_x,
             usable_from_t_unix_s=rows("usable_from_t_unix_s", n_sat, -np.inf),
             start_bias_enu_m=rows("start_bias_enu_m", 3, 0.0),
             has_start_bias=np.array([st.start_bias_enu_m is not None for st in states]),
@@ -247,7 +268,7 @@ class ReceiverRows:
         ce, ct = profile.correlated_error, profile.cn0_tracking
         nav = self.nav_enu_m[i]
         hold = self.hold_enu_m[i]
-        vel = self.vel_enu_mps[i]
+        known = ~np.isnan(self.past_t_unix_s[i])
         usable = self.usable_from_t_unix_s[i]
         return ReceiverState(
             n_epochs=int(self.n_epochs[i]),
@@ -257,7 +278,8 @@ class ReceiverRows:
             last_alt_hae_m=float(self.last_alt_hae_m[i]),
             nav_enu_m=nav if not np.isnan(nav[0]) else None,
             hold_enu_m=hold if not np.isnan(hold[0]) else None,
-            vel_enu_mps=vel if not np.isnan(vel[0]) else None,
+            past_t_unix_s=self.past_t_unix_s[i][known] if known.any() else None,
+            past_enu_m=self.past_enu_m[i][known] if known.any() else None,
             usable_from_t_unix_s=usable if usable.size and usable[0] != -np.inf else None,
             start_bias_enu_m=self.start_bias_enu_m[i] if self.has_start_bias[i] else None,
             fade_db=self.fade_db[i] if ct.enabled else None,
