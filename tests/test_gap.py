@@ -232,6 +232,20 @@ def test_real_logs_load(shared_data):
 # --- self-check and real cases -------------------------------------------------------------------
 
 
+def test_an_interval_of_grid_points_holds_what_rounds_into_it():
+    from virtualgps.gap.synthetic import covered
+
+    grid = {"tau_s": [1.5, 2.0, 2.5, 3.0, 16.0]}
+    one = {"tau_s": [2.5, 2.5]}
+    assert covered({"tau_s": 2.7}, one, grid) == {"tau_s": True}  # nearer 2.5 than 3.0
+    assert covered({"tau_s": 2.26}, one, grid) == {"tau_s": True}
+    assert covered({"tau_s": 2.8}, one, grid) == {"tau_s": False}
+    assert covered({"tau_s": 2.7}, one) == {"tau_s": False}  # (no grid: the span itself)
+    assert covered({"tau_s": 20.0}, {"tau_s": [16.0, 16.0]}, grid) == {"tau_s": False}
+    assert covered({"tau_s": 10.0}, {"tau_s": [16.0, 16.0]}, grid) == {"tau_s": True}
+    assert covered({"velocity_aided": True}, {"velocity_aided": [True]}, grid) == {}
+
+
 def test_selfcheck_ranks_injected_effects_first(tmp_path):
     from virtualgps.gap import selfcheck
 
@@ -410,24 +424,31 @@ def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
 
 
 @pytest.mark.slow
-def test_real_log_bases_find_an_injected_filter_and_a_wrong_truth(shared_data, tmp_path):
-    """The GSDC drive, untouched and then with a first-order filter injected into its fixes
-    or its truth moved by metres: the filter is the first effect the untouched log did not
-    need, its time constant near the injected one; the wrong truth is named as a truth offset
-    and no receiver effect absorbs it. (A pure delay injected into this phone's fixes is
-    taken for a filter: its errors are smoother than holux-m1000's, and a filter explains the
-    lag and the smoothness at once; docs/gap.md, Self-check.)"""
+def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared_data,
+                                                                          tmp_path):
+    """The GSDC drive, untouched and then with a pure output delay or a first-order filter
+    injected into its fixes, or its truth moved by metres. The untouched phone log needs a
+    velocity-aided filter against holux-m1000 (its errors are smoother, its track not
+    lagged); the delay is the first effect the untouched log did not need, its length near
+    the injected one; the filter is refitted as a filter of the motion near the injected
+    time constant; the wrong truth is named as a truth offset and no receiver effect absorbs
+    it."""
     from virtualgps.gap import selfcheck, selfcheck_real
 
     rows, note = selfcheck_real.run(shared_data, dg.Options(seeds=12, jobs=2), 1, tmp_path,
-                                    effects=("nav_filter", "truth_offset"))
+                                    effects=("latency", "nav_filter", "truth_offset"))
     assert note is None
-    filt, off = rows
+    delay, filt, off = rows
+    assert delay["base_accepted"] == ["nav_filter"]
+    assert delay["success"] and delay["added_first"] == "latency", delay
+    assert delay["recovered"]["latency_s"] == pytest.approx(delay["params"]["latency_s"],
+                                                            abs=0.3)
     assert filt["success"], filt
+    assert filt["recovered"]["velocity_aided"] is False
     assert filt["recovered"]["tau_s"] == pytest.approx(filt["params"]["tau_s"], abs=0.7)
     assert off["success"] and "truth_offset" in off["causes"], off
     result = selfcheck.summarise(rows, dg.Options(seeds=12))
-    assert result["confusion"]["real:gsdc:nav_filter"] == {"nav_filter": 1}
+    assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}
 
 
 def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):

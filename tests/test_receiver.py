@@ -456,6 +456,27 @@ def test_nav_filter_lags_a_moving_antenna_by_the_first_order_steady_state():
     np.testing.assert_allclose(err0, 0.0, atol=1e-5)  # no lag at rest
 
 
+def test_a_velocity_aided_nav_filter_smooths_the_error_and_follows_the_motion():
+    """Aided by its own velocity the filter follows a moving antenna without lag, and what it
+    low-passes is the solution's error: the same errors as without it, filtered (its first
+    fix on the first solution), however fast the antenna moves."""
+    tau = 2.0
+    aided = {"nav_filter": {"enabled": True, "tau_s": tau, "velocity_aided": True}}
+    _, err = _walk(load_profile("ideal", aided), 1.5)
+    np.testing.assert_allclose(err, 0.0, atol=1e-5)  # no lag (unaided: 2.3 m)
+    noisy = {"dop_error": {"enabled": True}}
+    _, raw = _walk(load_profile("ideal", noisy), 1.5, n=60, seed=2)
+    for speed in (0.0, 1.5, 20.0):
+        _, smooth = _walk(load_profile("ideal", {**noisy, **aided}), speed, n=60, seed=2)
+        want = raw.copy()
+        a = 1 - np.exp(-1.0 / tau)
+        for k in range(1, want.shape[0]):
+            want[k] = want[k - 1] + a * (raw[k] - want[k - 1])
+        np.testing.assert_allclose(smooth[:, :2], want[:, :2], atol=2e-3)
+    steps = np.hypot(*np.diff(smooth[:, :2], axis=0).T)
+    assert np.median(steps) < 0.5 * np.median(np.hypot(*np.diff(raw[:, :2], axis=0).T))
+
+
 def test_static_hold_freezes_the_output_below_the_threshold():
     over = {"dop_error": {"enabled": True}, "static_hold": {"enabled": True,
                                                            "threshold_mps": 0.4}}

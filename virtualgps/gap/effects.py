@@ -338,8 +338,11 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
     if name == "nav_filter":
         # 0.5 s steps where receivers' filters lie: with coarser grids a pure delay fits a
         # filter's lag better than the filter itself does, and back
+        # and whether it follows the motion with the receiver's own velocity (smoothing only
+        # the error, without lag: a phone's filter) or low-passes the position itself
         axes = (Axis("tau_s", (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0), 0.0,
-                     120.0),)
+                     120.0),
+                Axis("velocity_aided", (False, True)))
         return _table_candidate(name, name, on, axes, profile)
     if name == "static_hold":
         axes = (Axis("threshold_mps", (0.2, 0.4, 0.8, 1.6, 3.2), 0.0, 20.0),)

@@ -210,9 +210,9 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                        "static_hold": "threshold_mps"}[effect]
                 injected = {key: value}
                 added = [e["name"] for e in report["effects"] if e.get("accepted")]
-                params, intervals = synthetic.recovered((effect,), report)
+                params, intervals, grids = synthetic.recovered((effect,), report)
                 new = [a for a in added if a not in base_added]
-                cov = synthetic.covered(injected, intervals)
+                cov = synthetic.covered(injected, intervals, grids)
                 success = bool((new and new[0] == effect)
                                or (effect in base_added and effect in added and cov.get(key)))
                 recovered = params
@@ -227,8 +227,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "ranked_first": first, "added_first": ranked[0], "success": success,
                 "recovered": recovered,
                 "recovered_interval": ({} if effect == "truth_offset" else intervals),
-                "covered": ({} if effect == "truth_offset" else synthetic.covered(injected,
-                                                                                 intervals)),
+                "covered": {} if effect == "truth_offset" else cov,
                 "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
                 "outer_reduction": (report.get("outer") or {}).get("reduction"),
                 "outer_interval": (report.get("outer") or {}).get("interval"),

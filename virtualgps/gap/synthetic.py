@@ -348,27 +348,37 @@ def _label_index(label: str) -> int:
     return 100 + sum((k + 1) * ord(c) for k, c in enumerate(label)) % 10_000
 
 
-def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict]:
-    """The fitted parameters of the injected effects as the report gives them, and their
-    near-optimal intervals (the grid points within the seeds' noise of the best)."""
-    params, intervals = {}, {}
+def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict, dict]:
+    """The fitted parameters of the injected effects as the report gives them, their
+    near-optimal intervals (the grid points within the seeds' noise of the best) and the grids
+    those were fitted over."""
+    params, intervals, grids = {}, {}, {}
     for e in report["effects"]:
         if e["name"] in names and e.get("accepted"):
             params.update(e["params"])
             intervals.update((e.get("fit") or {}).get("intervals", {}))
-    return params, intervals
+            grids.update((e.get("fit") or {}).get("grid", {}))
+    return params, intervals, grids
 
 
-def covered(injected: dict, intervals: dict) -> dict[str, bool]:
-    """Per numeric injected parameter with an interval: does the interval hold it? (An
-    interval is a set of grid points: a value between two neighbouring points counts as held
-    when it lies within the interval's span widened to those neighbours.)"""
+def covered(injected: dict, intervals: dict, grids: dict | None = None) -> dict[str, bool]:
+    """Per numeric injected parameter with an interval: does the interval hold it? An
+    interval is a set of grid points, and a fit resolves a value to the nearest point: a value
+    between the interval's end and the next grid point outside it counts as held when it lies
+    nearer the end (the span widened half-way to those neighbours; without the grid, the span
+    itself)."""
     out = {}
     for k, v in injected.items():
         iv = intervals.get(k)
         if isinstance(v, int | float) and not isinstance(v, bool) and isinstance(iv, list) \
                 and len(iv) == 2 and all(isinstance(x, int | float) for x in iv):
-            out[k] = bool(iv[0] - 1e-9 <= v <= iv[1] + 1e-9)
+            lo, hi = float(iv[0]), float(iv[1])
+            grid = (grids or {}).get(k) or []
+            below = [g for g in grid if g < lo]
+            above = [g for g in grid if g > hi]
+            lo -= (lo - max(below)) / 2.0 if below else 0.0
+            hi += (min(above) - hi) / 2.0 if above else 0.0
+            out[k] = bool(lo - 1e-9 <= v <= hi + 1e-9)
     return out
 
 
@@ -385,7 +395,7 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
     # "nothing" ranks after the added effects and before every candidate not added
     ranked = accepted + [NOTHING] + [e["name"] for e in report["effects"]
                                      if not e.get("accepted")]
-    params, intervals = recovered(effects, report)
+    params, intervals, grids = recovered(effects, report)
     injected = _flat(trial.injected)
     where = report["where"]
     if kind == "null":
@@ -401,7 +411,7 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "accepted": accepted, "ranked_first": ranked[0],
         "added_first": accepted[0] if accepted else NOTHING, "success": success,
         "recovered": params, "recovered_interval": intervals,
-        "covered": covered(injected, intervals),
+        "covered": covered(injected, intervals, grids),
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
         "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
         "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),

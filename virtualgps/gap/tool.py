@@ -366,6 +366,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
                                    "outer test's"} if choice is not None else None),
         "outer": ({**outer, "folds": choice.outer} if choice is not None else None),
         "selection_rounds": choice.full.rounds if choice is not None else [],
+        "search_paths": choice.full.paths if choice is not None else [],
         "tracking_disagreement": (choice.full.tracking if choice is not None else {}) | {
             "definition": "sum over PRNs of |real - simulated tracked satellite-epochs| / "
                           "compared satellite-epochs, pooled over the held-out units, each "
@@ -384,7 +385,8 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
 
 
 HEADLINE = (("cep50_m", "CEP50", "m"), ("r95_m", "R95", "m"), ("lag_s", "lag", "s"),
-            ("smoothing_s", "smoothing", "s"), ("sats_used_mean", "satellites used", ""), ("hdop_median", "HDOP", ""),
+            ("smoothing_s", "smoothing", "s"), ("sats_used_mean", "satellites used", ""),
+            ("hdop_median", "HDOP", ""),
             ("fix_fraction", "fix fraction", ""), ("ttff_s", "first fix", "s"))
 
 

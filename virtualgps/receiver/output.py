@@ -222,7 +222,13 @@ def output_stage(
                                    prof.latency.latency_s, state)
         update.update(past)
         out = out - truth_enu_m + then
-    if prof.nav_filter.enabled:
+    if prof.nav_filter.enabled and prof.nav_filter.velocity_aided:
+        # (the state carries the filtered error: the motion itself is not filtered)
+        smooth, update["nav_enu_m"] = nav_filter(
+            err_enu_m, dt_s, has_fix, prof.nav_filter.tau_s, state.nav_enu_m
+        )
+        out = out - err_enu_m + smooth
+    elif prof.nav_filter.enabled:
         out, update["nav_enu_m"] = nav_filter(
             out, dt_s, has_fix, prof.nav_filter.tau_s, state.nav_enu_m
         )

@@ -190,10 +190,16 @@ class LatencyParams:
 @dataclass(frozen=True)
 class NavFilterParams:
     """``nav_filter``: the receiver's smoothing of its position, a first-order low-pass with
-    time constant ``tau_s`` (lags behind the truth when accelerating), restarted after a gap."""
+    time constant ``tau_s`` (lags behind the truth when accelerating), restarted after a gap.
+
+    With ``velocity_aided`` the filter carries its position forward with the receiver's own
+    velocity (Doppler) and low-passes only what the ranges add to it: the position's *error*
+    is smoothed and the motion followed without lag (a phone's or a car receiver's Kalman
+    filter: errors that change little from one epoch to the next, turns kept)."""
 
     enabled: bool = False
     tau_s: float = 1.0
+    velocity_aided: bool = False
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,8 @@ class ReceiverState:
     gm_m : (n_sat,) or (3,) float, metres, the Gauss-Markov errors (``correlated_error``) after
         the last epoch, None before the first
     last_alt_hae_m : altitude of the last 3D fix (a 2D fix holds it), NaN before the first
-    nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (None: restart the filter)
+    nav_enu_m : (3,) the ``nav_filter`` output at the last epoch (its error where
+        ``velocity_aided``; None: restart the filter)
     hold_enu_m : (3,) the position ``static_hold`` is holding (None: not holding)
     past_t_unix_s, past_enu_m : (m,) UTC seconds and (m, 3) metres, the truth's last known
         positions, as far back as ``latency`` reaches (None: none, or no ``latency``)
