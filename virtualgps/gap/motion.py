@@ -52,9 +52,9 @@ def lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, epochs: np.ndarray) ->
 
 # The delay and smoothing a log's fixes show (:func:`delay_smoothing_s`): the filter time
 # constants tried (0.1 s apart where receivers' filters lie, coarser beyond), the longest delay
-# (a log-vs-truth clock offset of seconds is a delay too), and the least change of the truth's
-# velocity (rms per second, m/s) that tells one from the other: at a constant velocity a
-# first-order filter of tau and a delay of tau move the fixes alike.
+# (a log-vs-truth clock offset of seconds is a delay too), and the least acceleration of the
+# truth (rms, m/s^2) that tells one from the other: at a constant velocity a first-order
+# filter of tau and a delay of tau move the fixes alike.
 SMOOTH_TAU_S = tuple(round(0.1 * k, 1) for k in range(21)) + (
     2.25, 2.5, 2.75, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0)
 SMOOTH_MAX_DELAY_S = 8.0
@@ -103,8 +103,7 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
     :data:`SMOOTH_MAX_DELAY_S` (whole epochs, and the fraction between two in closed form:
     the delayed truth is interpolated linearly between epochs, as a delay's fixes are), for
     every seed at once: sums over epochs as matrix products. NaN with fewer than 30 steps,
-    or where the truth's velocity changes by less than SMOOTH_MIN_ACC_RMS_MPS2 (rms per
-    second).
+    or where the truth's acceleration is under SMOOTH_MIN_ACC_RMS_MPS2 (rms).
 
     err_enu_m : (s, n, 3) fixes minus truth, metres; truth_lat_deg, truth_lon_deg, t_unix_s :
     (n,); epochs : (n,) bool, those to measure; returns (delay (s,) s, tau (s,) s)

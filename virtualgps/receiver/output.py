@@ -160,10 +160,13 @@ def delayed_enu_m(
         xa, xb = hx[rows, a], hx[rows, b]
         with np.errstate(invalid="ignore", divide="ignore"):
             w = np.clip((td - ta) / (tb - ta), 0.0, 1.0)[:, None]
-        out = np.where(((a >= 0) & (b >= 0))[:, None], xa + w * (xb - xa),
-                       np.where((b >= 0)[:, None], xb + vel_enu_mps * (td - tb)[:, None],
-                                truth_enu_m - vel_enu_mps * latency_s))
-        out = np.where((a >= 0)[:, None] & (b < 0)[:, None], xa, out)
+        has_a, has_b = (a >= 0)[:, None], (b >= 0)[:, None]
+        out = np.select(
+            [has_a & has_b, has_b, has_a],
+            [xa + w * (xb - xa),  # between two known positions
+             xb + vel_enu_mps * (td - tb)[:, None],  # before the first known one
+             xa],  # (the epoch's own pose unknown: no fix is output)
+            truth_enu_m - vel_enu_mps * latency_s)
         keep = np.where(known[:, None], np.arange(1, k), np.arange(k - 1))
         return out, {"past_t_unix_s": np.take_along_axis(ht, keep, axis=1),
                      "past_enu_m": np.take_along_axis(hx, keep[..., None], axis=1)}
