@@ -325,7 +325,8 @@ def test_delay_and_smoothing_tell_a_delay_from_a_filter():
     """Along a track with short turns: a delay keeps the track's shape (smoothing ~0, the
     delay its length), a first-order filter rounds it (smoothing its tau, delay ~0); the
     receiver's slow error and a bias do not count, white noise adds little; every seed of a
-    stack is fitted as if alone; a straight road at constant speed cannot tell them apart."""
+    stack is fitted as if alone; a straight road at constant speed cannot tell them apart, nor
+    a walk."""
     from virtualgps import geodesy
 
     rng = np.random.default_rng(1)
@@ -370,6 +371,10 @@ def test_delay_and_smoothing_tell_a_delay_from_a_filter():
                                              np.zeros(t.size), north[:, 0], north[:, 1])
     flat = np.zeros((1, t.size, 3))
     assert np.isnan(motion.delay_smoothing_s(flat, slat, slon, t, ok)).all()
+    walk = pos * 0.1  # the same turns at 1.5 m/s: a second of lag is under a fix's noise
+    wlat, wlon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
+                                             np.zeros(t.size), walk[:, 0], walk[:, 1])
+    assert np.isnan(motion.delay_smoothing_s(cases[0][2][None] * 0.1, wlat, wlon, t, ok)).all()
 
 
 def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():

@@ -59,6 +59,12 @@ SMOOTH_TAU_S = tuple(round(0.1 * k, 1) for k in range(21)) + (
     2.25, 2.5, 2.75, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0)
 SMOOTH_MAX_DELAY_S = 8.0
 SMOOTH_MIN_ACC_RMS_MPS2 = 0.1
+# Steps slower than this are left out: at walking pace a second of delay or smoothing moves a
+# fix by about a metre, under a consumer receiver's noise, and errors that depend on where the
+# antenna is (reflections off the walls it walks past) then pass for a response to its motion
+# (a walk near the campus's buildings with nlos injected: smoothing_s 1.4 predictive sd off
+# the seeds without it, and with it; a bicycle, a car or a drone runs faster).
+SMOOTH_MIN_SPEED_MPS = 3.0
 
 
 def _local_en_m(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
@@ -102,8 +108,9 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
     Least squares over the grid of :data:`SMOOTH_TAU_S` and every delay up to
     :data:`SMOOTH_MAX_DELAY_S` (whole epochs, and the fraction between two in closed form:
     the delayed truth is interpolated linearly between epochs, as a delay's fixes are), for
-    every seed at once: sums over epochs as matrix products. NaN with fewer than 30 steps,
-    or where the truth's acceleration is under SMOOTH_MIN_ACC_RMS_MPS2 (rms).
+    every seed at once: sums over epochs as matrix products. Only steps at
+    SMOOTH_MIN_SPEED_MPS or faster count; NaN with fewer than 30 of them, or where the
+    truth's acceleration is under SMOOTH_MIN_ACC_RMS_MPS2 (rms).
 
     err_enu_m : (s, n, 3) fixes minus truth, metres; truth_lat_deg, truth_lon_deg, t_unix_s :
     (n,); epochs : (n,) bool, those to measure; returns (delay (s,) s, tau (s,) s)
@@ -130,7 +137,8 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
     # regular (a model of a gap in the truth would be no model)
     bad = np.concatenate((np.ones(n_shift, int), (~regular).astype(int)))
     back = np.convolve(bad, np.ones(n_shift + 1, int))[n_shift:n_shift + regular.size] == 0
-    w = ok[:, 1:] & ok[:, :-1] & back[None]
+    fast = np.hypot(*np.diff(truth, axis=0).T) >= SMOOTH_MIN_SPEED_MPS * step
+    w = ok[:, 1:] & ok[:, :-1] & (back & fast)[None]
     if w.sum(axis=1).max() < 30:
         return nan
     acc = np.diff(np.diff(truth, axis=0), axis=0) / step ** 2  # (m - 1, 2) at the steps' ends
