@@ -177,6 +177,18 @@ def diagnose(
     figures : :class:`virtualgps.gap.report.GapFigureData`
     calibrated : the calibrated profile table
     """
+    from threadpoolctl import threadpool_limits
+
+    # One BLAS thread in this process: its located gaps are judged in a thread (matrix
+    # products in smoothing_s) while this thread forks the workers, and OpenBLAS's fork
+    # handler waits for its thread pool, which a product in flight holds: both hung (seen in
+    # the test suite). Its own thread pool unused, a fork has nothing to wait for.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _diagnose(inp, opts, progress)
+
+
+def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] | None
+              ) -> tuple[dict[str, Any], Any, dict]:
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
     runs_in, scene, scene_dir, tle, table, source = load_inputs(inp)
