@@ -68,18 +68,14 @@ SMOOTH_MIN_SPEED_MPS = 3.0
 
 
 def _local_en_m(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
-    """(n, 2) metres east and north of the first finite point (a local plane: the few km of
-    a drive), NaN where unknown."""
+    """(n, 2) metres east and north in the ENU frame of the first finite point, NaN where
+    unknown."""
     ok = np.isfinite(lat_deg) & np.isfinite(lon_deg)
-    out = np.full((lat_deg.size, 2), np.nan)
     if not ok.any():
-        return out
+        return np.full((lat_deg.size, 2), np.nan)
     i = int(np.argmax(ok))
-    m_m, n_m = geodesy.radii_of_curvature_m(lat_deg[i:i + 1])
-    out[:, 0] = np.radians(lon_deg - lon_deg[i]) * float(n_m[0]) * math.cos(math.radians(
-        lat_deg[i]))
-    out[:, 1] = np.radians(lat_deg - lat_deg[i]) * float(m_m[0])
-    return out
+    ecef = geodesy.geodetic_to_ecef(lat_deg, lon_deg, np.zeros(lat_deg.size))
+    return geodesy.ecef_to_enu(ecef, lat_deg[i], lon_deg[i], 0.0)[:, :2]
 
 
 def _low_pass(x: np.ndarray, dt_s: float, tau_s: float) -> np.ndarray:
