@@ -56,6 +56,17 @@ def test_practical_floor_makes_print_digits_no_gap():
     assert j.p == 0.0 and j.z == -bands.Z_CAP
 
 
+def test_smoothing_below_half_a_step_is_no_gap_and_a_filter_is():
+    """A null drive's smoothing estimate on a short block: the seeds pile up on 0 and 0.1 s and
+    the log, one more draw, says 0.3 s; that is no gap (a fresh null drive's block had taken a
+    0.3 s for a filter with the floor at 0.1 s). A 2 s filter against the same seeds is."""
+    sims = np.array([0.0] * 26 + [0.1] * 4)
+    assert bands.judge("smoothing_s", 0.3, sims).z == 0.0
+    assert bands.judge("smoothing_s", 2.0, sims).z > 5
+    # and between filters: 2.5 s against seeds at 1.5 s
+    assert bands.judge("smoothing_s", 2.5, np.full(30, 1.5) + np.linspace(-0.1, 0.1, 30)).z > 3
+
+
 def test_rank_judged_metrics_count_missing_seeds_as_longest():
     sims = np.array([np.nan] * 40 + list(np.linspace(100, 200, 10)))
     j = bands.judge("autocorr_s", 30.0, sims)  # below every seed: rank 0 of 50
