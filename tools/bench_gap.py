@@ -3,7 +3,7 @@ worker counts.
 
     python tools/bench_gap.py [--data ../shared/data] [--seeds 50] [--workers 1,2]
                               [--repeat 1] [--dask tcp://HOST:8786 | --dask-local]
-                              [--model 16,2]
+                              [--model 16,2] [--profile-jobs DIR]
 
 The run is the MT3339 static hour (3231 epochs over 3600 s) against ``usarsim``, which lacks
 every effect of DESIGN section 6, so every one is a candidate. For each worker count it times
@@ -25,6 +25,10 @@ shared cache) and what sending a job costs (pickling, pipes), so it bounds the s
 above, except that the located gaps are judged in the main thread rather than beside the
 workers; ``--workers 2 --model 2`` shows how close the model comes on this machine's cores.
 Measure on the cores themselves where you have them.
+
+``--profile-jobs DIR`` profiles the modelled runs' jobs alone (they run in this process there):
+``DIR/jobs-N.prof`` per modelled worker count N, and the functions that took longest printed;
+``--model 16,1`` so compares the jobs shaped for 16 workers with those shaped for one.
 """
 
 from __future__ import annotations
@@ -76,6 +80,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--model", default="",
                     help="also model these worker counts, comma-separated (see above)")
+    ap.add_argument("--profile-jobs", metavar="DIR",
+                    help="profile the modelled runs' jobs into DIR/jobs-N.prof (see above)")
     args = ap.parse_args()
     data = Path(args.data)
     inp = tool.GapInputs(
@@ -103,11 +109,46 @@ def main() -> None:
                     jobs.shutdown()
                     cluster.close()
     for n in (int(w) for w in args.model.split(",") if w):
-        r = once(inp, dg.Options(seeds=args.seeds, jobs=1), model_workers=n)
+        prof = _profile_jobs() if args.profile_jobs else None
+        try:
+            r = once(inp, dg.Options(seeds=args.seeds, jobs=1), model_workers=n)
+        finally:
+            if prof is not None:
+                _stop_profiling(prof, Path(args.profile_jobs) / f"jobs-{n}.prof")
         first = first or r["wall_s"]
         say(f"modelled workers {n}", r, n, first)
         print(f"  {(r['serial_s'] + r['job_s']) / r['wall_s']:.2f}x the same jobs one at a time "
               "(serial rest plus job time over the modelled wall)", flush=True)
+
+
+def _profile_jobs():
+    """A profiler switched on inside each job only (the modelled runs call the jobs here)."""
+    import cProfile
+
+    prof = cProfile.Profile()
+    call = jobs._Timed.__call__
+
+    def profiled(self, item):
+        prof.enable()
+        try:
+            return call(self, item)
+        finally:
+            prof.disable()
+
+    jobs._Timed.__call__ = profiled
+    prof.restore = call
+    return prof
+
+
+def _stop_profiling(prof, path: Path) -> None:
+    """Put the jobs back as they were; write the profile and print its top functions."""
+    import pstats
+
+    jobs._Timed.__call__ = prof.restore
+    path.parent.mkdir(parents=True, exist_ok=True)
+    prof.dump_stats(str(path))
+    print(f"  jobs' profile: {path}", flush=True)
+    pstats.Stats(prof).sort_stats("cumulative").print_stats(15)
 
 
 def say(what: str, r: dict, n: int, first: float) -> None:
