@@ -457,8 +457,8 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
     job over all the seeds (the seed-against-seed agreement is paired over all of them)."""
     from virtualgps.gap import simulator as sm
     from virtualgps.gap import tool
-    from virtualgps.gap.ensemble import ephemeris_of
-    from virtualgps.gap.runs import prepare_runs
+    from virtualgps.gap.ensemble import EnsembleJob, ephemeris_of, simulate_job
+    from virtualgps.gap.runs import prepare_runs, sim_obs
     from virtualgps.receiver.profiles import build_profile
     from virtualgps.sky import ephemeris as eph
 
@@ -483,8 +483,18 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
 
     whole = job((0, 1, 2, 3, 4))
     split = [job((0, 1)), job((2, 3, 4))]
+    # (the jobs after the first read what the real log shows in each unit from the worker's
+    # memo: the same as measured afresh)
+    setup, view, err_real = sm.shared(key)
+    sims = sim_obs(simulate_job(EnsembleJob(setup, prof, (0, 1, 2, 3, 4))), view)
+    err = where.errors_enu(view, sims)
     for u in range(2):
+        fresh = where.segment_stats(view, sims, err_real, err, units[u],
+                                    metrics=where.SCORE_METRICS)
+        assert fresh.real == whole[u].stats.real
         merged = where.merge_stats([split[0][u].stats, split[1][u].stats])
+        for m, values in fresh.sim.items():
+            np.testing.assert_array_equal(merged.sim[m], values, err_msg=m)
         assert merged.sim.keys() == whole[u].stats.sim.keys()
         assert merged.real == whole[u].stats.real
         for m, values in whole[u].stats.sim.items():

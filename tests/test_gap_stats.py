@@ -377,6 +377,10 @@ def test_delay_and_smoothing_tell_a_delay_from_a_filter():
     assert t2[1] == pytest.approx(2.5, abs=0.6) and d2[1] < 0.5
     alone = fit(noisy)
     assert alone[0][0] == pytest.approx(d2[1], abs=1e-9) and alone[1][0] == t2[1]
+    # the truth's responses are kept for the next call on the same truth: built again from
+    # copies of it, the fit is the same
+    again = motion.delay_smoothing_s(noisy[None], lat.copy(), lon.copy(), t.copy(), ok)
+    assert again[0][0] == alone[0][0] and again[1][0] == alone[1][0]
     north = np.tile([0.0, 1.0], (t.size, 1)) * t[:, None] * 15.0  # a straight road
     slat, slon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
                                              np.zeros(t.size), north[:, 0], north[:, 1])

@@ -9,6 +9,7 @@ motion cannot show it).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -89,6 +90,78 @@ def _low_pass(x: np.ndarray, dt_s: float, tau_s: float) -> np.ndarray:
     return y + x[0]
 
 
+@dataclass(frozen=True)
+class _TruthResponses:
+    """What :func:`delay_smoothing_s` needs of a truth alone, at about 1 Hz (``m`` steps)."""
+
+    idx: np.ndarray  # (m + 1,) the epochs kept
+    step: float  # s between them
+    truth: np.ndarray  # (m + 1, 2) metres, interpolated where unknown
+    known: np.ndarray  # (m + 1,) bool
+    usable: np.ndarray  # (m,) bool: fast, and known and regular as far back as the longest delay
+    acc2: np.ndarray  # (m - 1,) squared acceleration at the steps' ends, (m/s^2)^2
+    flat: np.ndarray  # (n_tau * (n_shift + 1), 2 m) each tau's steps at each whole delay
+    same: np.ndarray  # (n_tau * (n_shift + 1), m) their squared lengths
+    nxt: np.ndarray  # (n_tau * n_shift, m) products of neighbouring delays' steps
+    n_shift: int
+
+
+# The truths' responses last built, per process: the units of a run share its truth, and each
+# job measures several of them (a job spent ~0.02 s per unit rebuilding it). At most this many
+# truths are kept (an hour at 1 Hz: ~35 MB).
+TRUTH_CACHE_SIZE = 2
+_TRUTHS: list[tuple[tuple[np.ndarray, ...], _TruthResponses | None]] = []
+
+
+def _truth_responses(truth_lat_deg: np.ndarray, truth_lon_deg: np.ndarray, t_unix_s: np.ndarray
+                     ) -> _TruthResponses | None:
+    """The truth's low-passed steps at every tau of SMOOTH_TAU_S and whole-epoch delay, built
+    once per truth (the arrays' identity); None with fewer than 31 known epochs."""
+    for arrays, hit in _TRUTHS:
+        if all(a is b for a, b in zip(arrays, (truth_lat_deg, truth_lon_deg, t_unix_s),
+                                      strict=True)):
+            return hit
+    dt = epoch_step_s(t_unix_s)
+    stride = max(1, int(round(1.0 / dt)))  # (about 1 Hz: the steps of a 10 Hz log are noise)
+    idx = np.arange(0, t_unix_s.size, stride)
+    t = t_unix_s[idx]
+    step = dt * stride
+    truth = _local_en_m(truth_lat_deg[idx], truth_lon_deg[idx])
+    known = np.isfinite(truth).all(axis=1)
+    out = None
+    if known.sum() >= 31:
+        # the truth where unknown: interpolated (those steps are not counted; the filter runs
+        # on)
+        truth = np.stack([np.interp(t, t[known], truth[known, a]) for a in (0, 1)], axis=1)
+        regular = known[1:] & known[:-1] & (np.abs(np.diff(t) - step) < 0.25 * step)
+        n_shift = int(math.ceil(SMOOTH_MAX_DELAY_S / step)) + 1  # whole-epoch delays 0..n_shift
+        # a step counts where the truth's steps as far back as the longest delay are known and
+        # regular (a model of a gap in the truth would be no model)
+        bad = np.concatenate((np.ones(n_shift, int), (~regular).astype(int)))
+        back = np.convolve(bad, np.ones(n_shift + 1, int))[n_shift:n_shift + regular.size] == 0
+        fast = np.hypot(*np.diff(truth, axis=0).T) >= SMOOTH_MIN_SPEED_MPS * step
+        acc = np.diff(np.diff(truth, axis=0), axis=0) / step ** 2  # at the steps' ends
+        n_tau = len(SMOOTH_TAU_S)
+        m = truth.shape[0] - 1
+        # each tau's model steps at every whole-epoch delay: (m, 2) columns
+        shifted = np.zeros((n_tau, n_shift + 1, m, 2))
+        for i, tau in enumerate(SMOOTH_TAU_S):
+            steps = np.diff(_low_pass(truth, step, tau), axis=0)
+            for j in range(n_shift + 1):
+                shifted[i, j, j:] = steps[:m - j]
+        # (the two components added by hand: a sum over a trailing axis of 2 took as long as
+        # the fit)
+        e, n = shifted[..., 0], shifted[..., 1]
+        out = _TruthResponses(
+            idx, step, truth, known, back & fast, (acc ** 2).sum(axis=1),
+            shifted.reshape(n_tau * (n_shift + 1), 2 * m),
+            (e * e + n * n).reshape(n_tau * (n_shift + 1), m),
+            (e[:, :-1] * e[:, 1:] + n[:, :-1] * n[:, 1:]).reshape(n_tau * n_shift, m), n_shift)
+    _TRUTHS.insert(0, ((truth_lat_deg, truth_lon_deg, t_unix_s), out))
+    del _TRUTHS[TRUTH_CACHE_SIZE:]
+    return out
+
+
 def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
                       truth_lon_deg: np.ndarray, t_unix_s: np.ndarray, epochs: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
@@ -106,54 +179,29 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
     the delayed truth is interpolated linearly between epochs, as a delay's fixes are), for
     every seed at once: sums over epochs as matrix products. Only steps at
     SMOOTH_MIN_SPEED_MPS or faster count; NaN with fewer than 30 of them, or where the
-    truth's acceleration is under SMOOTH_MIN_ACC_RMS_MPS2 (rms).
+    truth's acceleration is under SMOOTH_MIN_ACC_RMS_MPS2 (rms). The truth's responses are
+    built once per truth (the same arrays) and kept for the next call.
 
     err_enu_m : (s, n, 3) fixes minus truth, metres; truth_lat_deg, truth_lon_deg, t_unix_s :
     (n,); epochs : (n,) bool, those to measure; returns (delay (s,) s, tau (s,) s)
     """
     s = err_enu_m.shape[0]
     nan = (np.full(s, np.nan), np.full(s, np.nan))
-    dt = epoch_step_s(t_unix_s)
-    stride = max(1, int(round(1.0 / dt)))  # (about 1 Hz: the steps of a 10 Hz log are noise)
-    idx = np.arange(0, t_unix_s.size, stride)
-    t = t_unix_s[idx]
-    step = dt * stride
-    truth = _local_en_m(truth_lat_deg[idx], truth_lon_deg[idx])
-    known = np.isfinite(truth).all(axis=1)
-    if known.sum() < 31:
+    tr = _truth_responses(truth_lat_deg, truth_lon_deg, t_unix_s)
+    if tr is None:
         return nan
-    # the truth where unknown: interpolated (those steps are not counted; the filter runs on)
-    truth = np.stack([np.interp(t, t[known], truth[known, a]) for a in (0, 1)], axis=1)
-    fix = truth[None] + err_enu_m[:, idx, :2]
+    fix = tr.truth[None] + err_enu_m[:, tr.idx, :2]
     d_fix = np.diff(fix, axis=1)  # (s, m, 2)
-    ok = (epochs[idx] & known)[None] & np.isfinite(fix).all(axis=2)
-    regular = known[1:] & known[:-1] & (np.abs(np.diff(t) - step) < 0.25 * step)
-    n_shift = int(math.ceil(SMOOTH_MAX_DELAY_S / step)) + 1  # whole-epoch delays 0..n_shift
-    # a step counts where the truth's steps as far back as the longest delay are known and
-    # regular (a model of a gap in the truth would be no model)
-    bad = np.concatenate((np.ones(n_shift, int), (~regular).astype(int)))
-    back = np.convolve(bad, np.ones(n_shift + 1, int))[n_shift:n_shift + regular.size] == 0
-    fast = np.hypot(*np.diff(truth, axis=0).T) >= SMOOTH_MIN_SPEED_MPS * step
-    w = ok[:, 1:] & ok[:, :-1] & (back & fast)[None]
+    ok = (epochs[tr.idx] & tr.known)[None] & np.isfinite(fix).all(axis=2)
+    w = ok[:, 1:] & ok[:, :-1] & tr.usable[None]
     if w.sum(axis=1).max() < 30:
         return nan
-    acc = np.diff(np.diff(truth, axis=0), axis=0) / step ** 2  # (m - 1, 2) at the steps' ends
     wa = w[:, 1:] & w[:, :-1]
-    acc_ms = (wa * (acc ** 2).sum(axis=1)[None]).sum(axis=1) / np.maximum(wa.sum(axis=1), 1)
+    acc_ms = (wa * tr.acc2[None]).sum(axis=1) / np.maximum(wa.sum(axis=1), 1)
     d_fix = np.where(w[..., None], d_fix, 0.0)
-    n_tau = len(SMOOTH_TAU_S)
+    n_tau, n_shift = len(SMOOTH_TAU_S), tr.n_shift
     m = d_fix.shape[1]
-    # each tau's model steps at every whole-epoch delay: (m, 2) columns
-    shifted = np.zeros((n_tau, n_shift + 1, m, 2))
-    for i, tau in enumerate(SMOOTH_TAU_S):
-        steps = np.diff(_low_pass(truth, step, tau), axis=0)
-        for j in range(n_shift + 1):
-            shifted[i, j, j:] = steps[:m - j]
-    flat = shifted.reshape(n_tau * (n_shift + 1), 2 * m)
-    # (the two components added by hand: a sum over a trailing axis of 2 took as long as the fit)
-    e, n = shifted[..., 0], shifted[..., 1]
-    same = (e * e + n * n).reshape(n_tau * (n_shift + 1), m)
-    nxt = (e[:, :-1] * e[:, 1:] + n[:, :-1] * n[:, 1:]).reshape(n_tau * n_shift, m)
+    flat, same, nxt = tr.flat, tr.same, tr.nxt
     rows = np.arange(s)
 
     def fit(wt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -174,7 +222,7 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
         return i_tau, j, f[rows, i_tau, j]
 
     i_tau, j, frac = fit(w.astype(float))
-    delay = (j + frac) * step
+    delay = (j + frac) * tr.step
     tau = np.asarray(SMOOTH_TAU_S)[i_tau]
     bad = (w.sum(axis=1) < 30) | (acc_ms < SMOOTH_MIN_ACC_RMS_MPS2 ** 2)
     return np.where(bad, np.nan, delay), np.where(bad, np.nan, tau)

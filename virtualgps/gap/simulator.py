@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import uuid
+from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -126,16 +127,40 @@ def share_runs(runs: list[Run]) -> list[str]:
     return keys
 
 
+# What the real log shows in each unit, per process (the memo of :func:`segment_stats`, keyed
+# by the run's key and the unit's epochs): a worker measures the same units of a run for table
+# after table, and a job of one seed spent half its statistics' time on the real log. At most
+# this many units are kept (each holds masks and elevations of its epochs, some 0.5 MB for an
+# hour at 1 Hz), the oldest dropped first.
+UNIT_MEMO_SIZE = 128
+_UNIT_MEMO: OrderedDict[tuple[str, bytes], dict] = OrderedDict()
+
+
+def _unit_memo(run: str, mask: np.ndarray) -> dict:
+    key = (run, np.packbits(mask).tobytes())
+    memo = _UNIT_MEMO.get(key)
+    if memo is None:
+        memo = _UNIT_MEMO[key] = {}
+        while len(_UNIT_MEMO) > UNIT_MEMO_SIZE:
+            _UNIT_MEMO.popitem(last=False)
+    else:
+        _UNIT_MEMO.move_to_end(key)
+    return memo
+
+
 def gap_job(j: GapJob) -> list[UnitScore] | list[UnitPart]:
     """Each asked unit of a run under the job's seeds (see :class:`GapJob`): its score, or
     (a seed group's job) what it shows."""
     setup, view, err_real = shared(j.run)
     sims = sim_obs(simulate_job(EnsembleJob(setup, j.profile, j.seeds)), view)
     err = errors_enu(view, sims)
-    parts = [UnitPart(segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS),
-                      prn_tracking(view, sims, m) if j.prn else None,
-                      bin_tracking(view, sims, m) if j.bins else None)
-             for m in j.units]
+    parts = []
+    for m in j.units:
+        memo = _unit_memo(j.run, m)
+        parts.append(UnitPart(
+            segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS, memo=memo),
+            prn_tracking(view, sims, m, memo) if j.prn else None,
+            bin_tracking(view, sims, m, memo) if j.bins else None))
     # Scored here where it can be: in the main process the scoring is serial time.
     return [unit_score([p]) for p in parts] if j.whole else parts
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -304,52 +304,68 @@ def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) 
     return np.where(w[None, :] > 0, frac, np.nan), w
 
 
-def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray
+def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per PRN over a segment: compared satellite-epochs and those tracked by the real
     receiver, (2, k); tracked by each seed, (s, k). :func:`tracking_means` makes of them the
     (3, k) counts that, pooled over held-out units, give the per-PRN tracking disagreement
-    (:func:`pooled_tracking_disagreement`). Zeros without GSV/SNR in the real log."""
-    fixed = np.zeros((2, view.prn.size))
+    (:func:`pooled_tracking_disagreement`). Zeros without GSV/SNR in the real log. ``memo``:
+    as :func:`segment_stats`'s (the real log's part kept)."""
     per_seed = np.zeros((sims.tracked.shape[0], view.prn.size))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
-        return fixed, per_seed
-    m = view.sat_ok & (epochs & view.valid)[:, None]
-    fixed[0] = m.sum(axis=0)
-    fixed[1] = (view.real.tracked[0] & m).sum(axis=0)
+        return np.zeros((2, view.prn.size)), per_seed
+    hit = memo.get("prn") if memo else None
+    if hit is None:
+        m = view.sat_ok & (epochs & view.valid)[:, None]
+        fixed = np.zeros((2, view.prn.size))
+        fixed[0] = m.sum(axis=0)
+        fixed[1] = (view.real.tracked[0] & m).sum(axis=0)
+        hit = (m, fixed)
+        if memo is not None:
+            memo["prn"] = hit
+    m, fixed = hit
     per_seed[:] = (sims.tracked & m[None]).sum(axis=1)
-    return fixed, per_seed
+    return fixed.copy(), per_seed
 
 
 SKY_BIN_AZ_DEG = 30.0  # the sky bins a learned sky mask is made of
 SKY_BIN_EL_DEG = 15.0
 
 
-def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray
+def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per sky bin (SKY_BIN_EL_DEG x SKY_BIN_AZ_DEG, rows from the horizon up, azimuth from
     north): compared satellite-epochs, tracked by the real receiver, the real tracked
     satellites' SNR sum, (3, n_el * n_az); and per seed the tracked satellite-epochs and their
     SNR sum, (2, s, n_el * n_az). :func:`tracking_means` makes of them what a learned sky mask
-    is made from. Zeros without GSV/SNR in the real log."""
+    is made from. Zeros without GSV/SNR in the real log. ``memo``: as :func:`segment_stats`'s
+    (the bins and the real log's part kept)."""
     n_az, n_el = int(360 / SKY_BIN_AZ_DEG), int(90 / SKY_BIN_EL_DEG)
     nb = n_el * n_az
     s = sims.tracked.shape[0]
-    fixed, per_seed = np.zeros((3, nb)), np.zeros((2, s, nb))
+    per_seed = np.zeros((2, s, nb))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
-        return fixed, per_seed
-    m = view.sat_ok & (epochs & view.valid)[:, None]
-    r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
-    c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0, n_az - 1)
-    b = (r * n_az + c)[m]
-    real_cn0 = np.where(view.real.tracked[0], view.real.cn0_dbhz[0], 0.0)[m]
-    for row, w in enumerate((None, view.real.tracked[0][m], np.nan_to_num(real_cn0))):
-        fixed[row] = np.bincount(b, weights=w, minlength=nb)
+        return np.zeros((3, nb)), per_seed
+    hit = memo.get("bins") if memo else None
+    if hit is None:
+        m = view.sat_ok & (epochs & view.valid)[:, None]
+        r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
+        c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0,
+                    n_az - 1)
+        b = (r * n_az + c)[m]
+        fixed = np.zeros((3, nb))
+        real_cn0 = np.where(view.real.tracked[0], view.real.cn0_dbhz[0], 0.0)[m]
+        for row, w in enumerate((None, view.real.tracked[0][m], np.nan_to_num(real_cn0))):
+            fixed[row] = np.bincount(b, weights=w, minlength=nb)
+        hit = (m, b, fixed)
+        if memo is not None:
+            memo["bins"] = hit
+    m, b, fixed = hit
     seed_b = (np.arange(s)[:, None] * nb + b[None, :]).ravel()  # one bincount for all seeds
     sim_cn0 = np.nan_to_num(np.where(sims.tracked, sims.cn0_dbhz, 0.0)[:, m])
     for row, w in enumerate((sims.tracked[:, m].astype(float), sim_cn0)):
         per_seed[row] = np.bincount(seed_b, weights=w.ravel(), minlength=s * nb).reshape(s, nb)
-    return fixed, per_seed
+    return fixed.copy(), per_seed
 
 
 def tracking_means(fixed: np.ndarray, per_seed: np.ndarray) -> np.ndarray:
@@ -423,6 +439,104 @@ def merge_stats(parts: list[SegmentStats]) -> SegmentStats:
     return SegmentStats(real, sim, pair, fractions)
 
 
+# The order of a segment's metrics (its rows in the report), pairwise ones in their places.
+_ORDER = ("cep50_m", "r95_m", "up_p68_m", "bias_m", "autocorr_s", "sats_used_mean",
+          "used_changes_per_min", "hdop_median", "fix_fraction", "dgps_fraction", "ttff_s",
+          "error_step_m", "frozen_fraction", "lag_s", "smoothing_s", "eq4_deg",
+          "tracked_agreement", "tracked_share", "cn0_median_dbhz", "used_el_p05_deg")
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """What one segment's statistics need besides a side's output (the same for the real log
+    and every seed)."""
+
+    view: RunView
+    epochs: np.ndarray  # (n,) bool, the segment's valid epochs
+    position: bool  # position metrics (a segment of epochs, not of satellites)
+    starts: bool  # the segment holds the power-on
+    moving: np.ndarray  # (n,) bool, epochs moving fast enough for lag and smoothing
+    steady: np.ndarray  # (n - 1,) bool, no gap between two epochs
+    sat_mask: np.ndarray | None  # (n, k') the compared satellite-epochs (None: no GSV)
+    cols: np.ndarray | None  # (k,) bool, the satellites kept (None: all k)
+    el_deg: np.ndarray | None  # (n, k') their elevations
+    gsa: bool  # used_el_p05_deg is assessed
+
+    def sats(self, o: Obs) -> Obs:
+        """A side's output over the satellites kept (what :func:`_side_stats` takes)."""
+        if self.cols is None:
+            return o
+        return replace(o, tracked=o.tracked[..., self.cols], cn0_dbhz=o.cn0_dbhz[..., self.cols],
+                       used=o.used[..., self.cols])
+
+
+def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool]
+                ) -> dict[str, np.ndarray]:
+    """The per-row metrics of one side (the real log, s = 1, or the seeds; its output over
+    the segment's satellites, :meth:`_Segment.sats`) over a segment: {metric: (s,)}; the
+    pairwise metrics (eq4_deg, tracked_agreement) are not here. Smoothing is left to
+    :func:`segment_stats` (one call serves both sides)."""
+    out: dict[str, np.ndarray] = {}
+    view, epochs = g.view, g.epochs
+    t = view.t_unix_s
+    if g.position:
+        f = o.fixed[:, epochs]
+        eh = np.hypot(e[:, epochs, 0], e[:, epochs, 1])
+        if wanted("cep50_m"):
+            out["cep50_m"] = row_quantile(eh, 0.5)
+        if wanted("r95_m"):
+            out["r95_m"] = row_quantile(eh, 0.95)
+        if wanted("up_p68_m"):
+            # The vertical scatter about its own median: a receiver's vertical error (DOP-driven
+            # in most; none in the paper's model, smoothed in MTK's) without the truth's height
+            # offset (an antenna height, a geoid model), which no effect of a receiver explains.
+            up = e[:, epochs, 2]
+            out["up_p68_m"] = row_quantile(np.abs(up - row_quantile(up, 0.5)[:, None]), 0.68)
+        if view.reference == "truth" and wanted("bias_m"):
+            m = np.stack([_rowmean(e[:, epochs][:, :, j]) for j in (0, 1)], axis=-1)
+            out["bias_m"] = np.hypot(m[:, 0], m[:, 1])
+        if wanted("autocorr_s"):
+            te = t[epochs]
+            out["autocorr_s"] = np.array([autocorr_time_s(te, row[epochs, :2]) for row in e])
+        if wanted("sats_used_mean"):
+            out["sats_used_mean"] = _rowmean(np.where(f, o.sats_used[:, epochs], np.nan))
+        if wanted("used_changes_per_min"):
+            c = np.where(f & np.isfinite(o.sats_used[:, epochs]), o.sats_used[:, epochs], -1)
+            out["used_changes_per_min"] = np.array([changes_per_minute(row, t[epochs])
+                                                    for row in c])
+        if wanted("hdop_median"):
+            out["hdop_median"] = row_quantile(np.where(f, o.hdop[:, epochs], np.nan), 0.5)
+        if wanted("fix_fraction"):
+            out["fix_fraction"] = f.mean(axis=1)
+        if wanted("dgps_fraction"):
+            out["dgps_fraction"] = (o.quality[:, epochs] == 2).mean(axis=1)
+        if wanted("ttff_s") and g.starts:
+            first = np.argmax(f, axis=1)
+            out["ttff_s"] = np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s,
+                                     np.nan)
+        if wanted("error_step_m"):
+            d = np.hypot(np.diff(e[:, :, 0], axis=1), np.diff(e[:, :, 1], axis=1))
+            ok = o.fixed[:, 1:] & o.fixed[:, :-1] & epochs[1:] & g.steady
+            out["error_step_m"] = row_quantile(np.where(ok, d, np.nan), 0.5)
+        if wanted("frozen_fraction"):
+            same = (np.diff(o.lat_deg, axis=1) == 0) & (np.diff(o.lon_deg, axis=1) == 0)
+            m = epochs[1:] & o.fixed[:, 1:] & o.fixed[:, :-1]
+            out["frozen_fraction"] = (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
+        if g.moving.sum() >= 30 and wanted("lag_s"):
+            out["lag_s"] = lag_s(e, view.vel_enu_mps, g.moving)
+    if g.sat_mask is not None and view.assess.get("cn0"):
+        if wanted("tracked_share"):
+            out["tracked_share"] = ((o.tracked & g.sat_mask[None]).sum(axis=(1, 2))
+                                    / g.sat_mask.sum())
+        if wanted("cn0_median_dbhz"):  # (GSV SNR: whole dB-Hz)
+            out["cn0_median_dbhz"] = binned_quantile(o.cn0_dbhz, o.tracked & g.sat_mask[None],
+                                                     0.5, 1.0, 99.0)
+    if g.sat_mask is not None and g.gsa and wanted("used_el_p05_deg"):
+        out["used_el_p05_deg"] = binned_quantile(g.el_deg, o.used & g.sat_mask[None], 0.05,
+                                                 0.1, 90.0)
+    return out
+
+
 def segment_stats(
     view: RunView,
     sims: Obs,
@@ -431,6 +545,7 @@ def segment_stats(
     epochs: np.ndarray,
     sats: np.ndarray | None = None,
     metrics: Iterable[str] | None = None,
+    memo: dict | None = None,
 ) -> SegmentStats:
     """Every metric of DESIGN 7.1 that the segment and the real log support.
 
@@ -442,6 +557,10 @@ def segment_stats(
     sats : (n, k) bool or None, the segment's satellite-epochs (sky sectors, one PRN);
         None: every comparable one in the segment's epochs
     metrics : restrict to these names (None: all)
+    memo : a dict kept by the caller for this run, segment and metrics (empty at first): what
+        the real log shows there is computed once and kept in it (an ensemble job measures
+        the same units of a run for table after table; a job of one seed spent half its
+        statistics' time on the real log)
 
     Returns
     -------
@@ -452,128 +571,67 @@ def segment_stats(
     def wanted(name: str) -> bool:
         return want is None or name in want
 
+    g = memo.get("segment") if memo else None
+    if g is None:
+        epochs = epochs & view.valid
+        sat_mask = view.sat_ok & epochs[:, None] if sats is None else view.sat_ok & sats
+        has_sats = bool(view.assess.get("gsv") and sat_mask.any())
+        # only the satellites the segment holds where they are few (one PRN, a sky sector):
+        # copying most columns of every seed's arrays costs more than it saves
+        cols = sat_mask.any(axis=0) if has_sats else None
+        if cols is not None and 2 * cols.sum() > cols.size:
+            cols = None
+        t = view.t_unix_s
+        g = _Segment(
+            view, epochs, position=sats is None and bool(epochs.any()),
+            starts=bool(view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S),
+            moving=epochs & (view.speed_mps >= MOVING_MPS),
+            steady=np.diff(t) < 1.5 * epoch_step_s(t),  # (no gap between the two)
+            sat_mask=(sat_mask[:, cols] if cols is not None else sat_mask) if has_sats else None,
+            cols=cols, el_deg=(view.el_deg[:, cols] if cols is not None else view.el_deg)
+            if has_sats else None, gsa=bool(view.assess.get("gsa")) and sats is None)
+    real_rows = memo.get("real") if memo else None
+    if real_rows is None:
+        real_rows = _side_stats(g, g.sats(view.real), err_real, wanted)
+    have = {m for m, v in real_rows.items() if np.isfinite(v[0])}
+    sims_k = g.sats(sims)
+    sim_rows = _side_stats(g, sims_k, err_sim, lambda m: m in have)
+    smooth = g.position and g.moving.sum() >= 30 and wanted("smoothing_s")
+    if smooth:
+        fresh = "smoothing_s" not in real_rows
+        both = np.concatenate((err_real, err_sim)) if fresh else err_sim
+        _, tau = delay_smoothing_s(both, view.truth_lat_deg, view.truth_lon_deg,
+                                   view.t_unix_s, g.moving)
+        if fresh:
+            real_rows["smoothing_s"], tau = tau[:1], tau[1:]
+        if np.isfinite(real_rows["smoothing_s"][0]):
+            sim_rows["smoothing_s"] = tau
+    if memo is not None:
+        memo.update(segment=g, real=real_rows)
     real, sim, pair = {}, {}, {}
     fractions = None
-    t = view.t_unix_s
-    epochs = epochs & view.valid
-    sat_mask = view.sat_ok & epochs[:, None] if sats is None else view.sat_ok & sats
-    position = sats is None and epochs.any()
-    rf, sf = view.real.fixed[:, epochs], sims.fixed[:, epochs]
-
-    def put(name: str, r: np.ndarray, s: np.ndarray) -> None:
-        if np.isfinite(r[0]):
-            real[name], sim[name] = float(r[0]), s
-
-    if position:
-        eh_r = np.hypot(err_real[:, epochs, 0], err_real[:, epochs, 1])
-        eh_s = np.hypot(err_sim[:, epochs, 0], err_sim[:, epochs, 1])
-        if wanted("cep50_m"):
-            put("cep50_m", row_quantile(eh_r, 0.5), row_quantile(eh_s, 0.5))
-        if wanted("r95_m"):
-            put("r95_m", row_quantile(eh_r, 0.95), row_quantile(eh_s, 0.95))
-        if wanted("up_p68_m"):
-            # The vertical scatter about its own median: a receiver's vertical error (DOP-driven
-            # in most; none in the paper's model, smoothed in MTK's) without the truth's height
-            # offset (an antenna height, a geoid model), which no effect of a receiver explains.
-            def up_scatter(e: np.ndarray) -> np.ndarray:
-                up = e[:, epochs, 2]
-                return row_quantile(np.abs(up - row_quantile(up, 0.5)[:, None]), 0.68)
-            put("up_p68_m", up_scatter(err_real), up_scatter(err_sim))
-        if view.reference == "truth" and wanted("bias_m"):
-            def bias(e: np.ndarray) -> np.ndarray:
-                m = np.stack([_rowmean(e[:, :, j]) for j in (0, 1)], axis=-1)
-                return np.hypot(m[:, 0], m[:, 1])
-            put("bias_m", bias(err_real[:, epochs]), bias(err_sim[:, epochs]))
-        if wanted("autocorr_s"):
-            te = t[epochs]
-            r = np.array([autocorr_time_s(te, err_real[0, epochs, :2])])
-            if np.isfinite(r[0]):
-                put("autocorr_s", r, np.array([autocorr_time_s(te, e[epochs, :2])
-                                               for e in err_sim]))
-        if wanted("sats_used_mean"):
-            def used_mean(o: Obs, f: np.ndarray) -> np.ndarray:
-                return _rowmean(np.where(f, o.sats_used[:, epochs], np.nan))
-            put("sats_used_mean", used_mean(view.real, rf), used_mean(sims, sf))
-        if wanted("used_changes_per_min"):
-            def changes(o: Obs, f: np.ndarray) -> np.ndarray:
-                c = np.where(f & np.isfinite(o.sats_used[:, epochs]), o.sats_used[:, epochs], -1)
-                return np.array([changes_per_minute(row, t[epochs]) for row in c])
-            put("used_changes_per_min", changes(view.real, rf), changes(sims, sf))
-        if wanted("hdop_median"):
-            def hdop(o: Obs, f: np.ndarray) -> np.ndarray:
-                return row_quantile(np.where(f, o.hdop[:, epochs], np.nan), 0.5)
-            put("hdop_median", hdop(view.real, rf), hdop(sims, sf))
-        if wanted("fix_fraction"):
-            put("fix_fraction", rf.mean(axis=1), sf.mean(axis=1))
-        if wanted("dgps_fraction"):
-            put("dgps_fraction", (view.real.quality[:, epochs] == 2).mean(axis=1),
-                (sims.quality[:, epochs] == 2).mean(axis=1))
-        starts = view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S
-        if wanted("ttff_s") and starts:
-            def ttff(f: np.ndarray) -> np.ndarray:
-                first = np.argmax(f, axis=1)
-                return np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s, np.nan)
-            put("ttff_s", ttff(rf), ttff(sf))
-        if wanted("error_step_m"):
-            def step(e: np.ndarray, o: Obs) -> np.ndarray:
-                d = np.hypot(np.diff(e[:, :, 0], axis=1), np.diff(e[:, :, 1], axis=1))
-                steady = np.diff(t) < 1.5 * epoch_step_s(t)  # (no gap between the two)
-                ok = o.fixed[:, 1:] & o.fixed[:, :-1] & epochs[1:] & steady
-                return row_quantile(np.where(ok, d, np.nan), 0.5)
-            put("error_step_m", step(err_real, view.real), step(err_sim, sims))
-        if wanted("frozen_fraction"):
-            def frozen(o: Obs) -> np.ndarray:
-                same = (np.diff(o.lat_deg, axis=1) == 0) & (np.diff(o.lon_deg, axis=1) == 0)
-                m = epochs[1:] & o.fixed[:, 1:] & o.fixed[:, :-1]
-                return (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
-            put("frozen_fraction", frozen(view.real), frozen(sims))
-        moving = epochs & (view.speed_mps >= MOVING_MPS)
-        if moving.sum() >= 30 and wanted("lag_s"):
-            put("lag_s", lag_s(err_real, view.vel_enu_mps, moving),
-                lag_s(err_sim, view.vel_enu_mps, moving))
-        if moving.sum() >= 30 and wanted("smoothing_s"):
-            # (real and seeds in one call: the truth's responses are made once)
-            _, tau = delay_smoothing_s(np.concatenate((err_real, err_sim)), view.truth_lat_deg,
-                                       view.truth_lon_deg, t, moving)
-            put("smoothing_s", tau[:1], tau[1:])
-        if wanted("eq4_deg"):
+    for name in _ORDER:
+        if name in sim_rows:
+            real[name], sim[name] = float(real_rows[name][0]), sim_rows[name]
+        elif name == "eq4_deg" and g.position and wanted(name):
             def eq4(a_lat, a_lon, b_lat, b_lon) -> np.ndarray:
                 return row_quantile(_eq4_deg(a_lat, a_lon, b_lat, b_lon), 0.5)
-            lat_s, lon_s = sims.lat_deg[:, epochs], sims.lon_deg[:, epochs]
-            rp = eq4(view.real.lat_deg[:, epochs], view.real.lon_deg[:, epochs], lat_s, lon_s)
+            lat_s, lon_s = sims.lat_deg[:, g.epochs], sims.lon_deg[:, g.epochs]
+            rp = eq4(view.real.lat_deg[:, g.epochs], view.real.lon_deg[:, g.epochs], lat_s, lon_s)
             if np.isfinite(rp).any():
-                real["eq4_deg"] = float(np.nanmedian(rp))
-                pair["eq4_deg"] = rp
-                sim["eq4_deg"] = eq4(lat_s, lon_s, np.roll(lat_s, 1, 0), np.roll(lon_s, 1, 0))
-    if view.assess.get("gsv") and sat_mask.any():
-        el_deg, real_obs = view.el_deg, view.real
-        cols = sat_mask.any(axis=0)
-        if not cols.all():  # only the satellites the segment holds (one PRN, a sky sector)
-            sat_mask, el_deg = sat_mask[:, cols], el_deg[:, cols]
-            real_obs, sims = (replace(o, tracked=o.tracked[..., cols],
-                                      cn0_dbhz=o.cn0_dbhz[..., cols], used=o.used[..., cols])
-                              for o in (real_obs, sims))
-        if wanted("tracked_agreement") and view.assess.get("cn0"):
-            fr, w = tracked_fractions(view, real_obs.tracked, sat_mask)
-            fs, _ = tracked_fractions(view, sims.tracked, sat_mask)
+                real[name] = float(np.nanmedian(rp))
+                pair[name] = rp
+                sim[name] = eq4(lat_s, lon_s, np.roll(lat_s, 1, 0), np.roll(lon_s, 1, 0))
+        elif (name == "tracked_agreement" and g.sat_mask is not None and view.assess.get("cn0")
+              and wanted(name)):
+            fr, w = tracked_fractions(view, g.sats(view.real).tracked, g.sat_mask)
+            fs, _ = tracked_fractions(view, sims_k.tracked, g.sat_mask)
             rp = 1.0 - _disagreement(np.broadcast_to(fr, fs.shape), fs, w)
             if np.isfinite(rp).any():
-                real["tracked_agreement"] = float(np.nanmedian(rp))
-                pair["tracked_agreement"] = rp
-                sim["tracked_agreement"] = 1.0 - _disagreement(fs, np.roll(fs, 1, 0), w)
+                real[name] = float(np.nanmedian(rp))
+                pair[name] = rp
+                sim[name] = 1.0 - _disagreement(fs, np.roll(fs, 1, 0), w)
                 fractions = (fs, w)
-        if wanted("tracked_share") and view.assess.get("cn0"):
-            def share(o: Obs) -> np.ndarray:
-                return (o.tracked & sat_mask[None]).sum(axis=(1, 2)) / sat_mask.sum()
-            put("tracked_share", share(real_obs), share(sims))
-        if wanted("cn0_median_dbhz") and view.assess.get("cn0"):
-            def cn0(o: Obs) -> np.ndarray:  # (GSV SNR: whole dB-Hz)
-                return binned_quantile(o.cn0_dbhz, o.tracked & sat_mask[None], 0.5, 1.0, 99.0)
-            put("cn0_median_dbhz", cn0(real_obs), cn0(sims))
-        if wanted("used_el_p05_deg") and view.assess.get("gsa") and sats is None:
-            def used_el(o: Obs) -> np.ndarray:
-                return binned_quantile(el_deg, o.used & sat_mask[None], 0.05, 0.1, 90.0)
-            put("used_el_p05_deg", used_el(real_obs), used_el(sims))
     return SegmentStats(real, sim, pair, fractions)
 
 
