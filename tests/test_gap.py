@@ -451,10 +451,11 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
     assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}
 
 
-def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
+def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monkeypatch):
     """A batch with few jobs splits their seeds over more jobs: the units' scores (gap, every
     metric's distance, the per-PRN and per-sky-bin counts) are the same to the bit as from one
-    job over all the seeds (the seed-against-seed agreement is paired over all of them)."""
+    job over all the seeds (the seed-against-seed agreement is paired over all of them), and
+    whether a worker kept what the real log shows in each unit or had to drop it."""
     from virtualgps.gap import simulator as sm
     from virtualgps.gap import tool
     from virtualgps.gap.ensemble import EnsembleJob, ephemeris_of, simulate_job
@@ -484,7 +485,16 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data):
     whole = job((0, 1, 2, 3, 4))
     split = [job((0, 1)), job((2, 3, 4))]
     # (the jobs after the first read what the real log shows in each unit from the worker's
-    # memo: the same as measured afresh)
+    # memo: the same as measured afresh, and as with no room to keep it)
+    with monkeypatch.context() as mp:
+        mp.setattr(sm, "UNIT_MEMO_BYTES", 1)
+        job((0, 1))
+        assert len(sm._UNIT_MEMO) == 1
+        squeezed = job((0, 1))  # (the first unit measured again)
+    for u in range(2):
+        assert squeezed[u].stats.real == split[0][u].stats.real
+        for m, values in split[0][u].stats.sim.items():
+            np.testing.assert_array_equal(squeezed[u].stats.sim[m], values, err_msg=m)
     setup, view, err_real = sm.shared(key)
     sims = sim_obs(simulate_job(EnsembleJob(setup, prof, (0, 1, 2, 3, 4))), view)
     err = where.errors_enu(view, sims)

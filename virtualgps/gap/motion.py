@@ -106,10 +106,10 @@ class _TruthResponses:
     n_shift: int
 
 
-# The truths' responses last built, per process: the units of a run share its truth, and each
-# job measures several of them (a job spent ~0.02 s per unit rebuilding it). At most this many
-# truths are kept (an hour at 1 Hz: ~35 MB).
-TRUTH_CACHE_SIZE = 2
+# The truth's responses last built, per process: the units of a run share its truth, and each
+# job measures several of them (a job spent ~0.02 s per unit rebuilding it). One truth is kept
+# (an hour at 1 Hz: ~40 MB, the size of one call's own arrays).
+TRUTH_CACHE_SIZE = 1
 _TRUTHS: list[tuple[tuple[np.ndarray, ...], _TruthResponses | None]] = []
 
 

@@ -129,23 +129,48 @@ def share_runs(runs: list[Run]) -> list[str]:
 
 # What the real log shows in each unit, per process (the memo of :func:`segment_stats`, keyed
 # by the run's key and the unit's epochs): a worker measures the same units of a run for table
-# after table, and a job of one seed spent half its statistics' time on the real log. At most
-# this many units are kept (each holds masks and elevations of its epochs, some 0.5 MB for an
-# hour at 1 Hz), the oldest dropped first.
-UNIT_MEMO_SIZE = 128
+# after table, and a job of one seed spent half its statistics' time on the real log. The
+# memos kept hold at most this many bytes (masks and elevations of a unit's epochs: some
+# 0.8 MB a unit for an hour at 1 Hz with GSV, ten times that at 10 Hz), the least recently
+# used dropped first.
+UNIT_MEMO_BYTES = 256 * 2**20
 _UNIT_MEMO: OrderedDict[tuple[str, bytes], dict] = OrderedDict()
+_UNIT_MEMO_SIZE: dict[tuple[str, bytes], int] = {}
 
 
-def _unit_memo(run: str, mask: np.ndarray) -> dict:
+def _nbytes(x: Any) -> int:
+    """The bytes of the arrays in a memo's values (dicts, tuples, dataclasses)."""
+    if isinstance(x, np.ndarray):
+        return x.nbytes
+    if isinstance(x, dict):
+        return sum(_nbytes(v) for v in x.values())
+    if isinstance(x, (tuple, list)):
+        return sum(_nbytes(v) for v in x)
+    if hasattr(x, "__dataclass_fields__"):
+        return sum(_nbytes(getattr(x, f)) for f in x.__dataclass_fields__ if f != "view")
+    return 0
+
+
+def _unit_memo(run: str, mask: np.ndarray) -> tuple[tuple[str, bytes], dict]:
+    """A unit's memo (empty the first time) and its key."""
     key = (run, np.packbits(mask).tobytes())
     memo = _UNIT_MEMO.get(key)
     if memo is None:
         memo = _UNIT_MEMO[key] = {}
-        while len(_UNIT_MEMO) > UNIT_MEMO_SIZE:
-            _UNIT_MEMO.popitem(last=False)
     else:
         _UNIT_MEMO.move_to_end(key)
-    return memo
+    return key, memo
+
+
+def _keep_memos(keys: list[tuple[str, bytes]]) -> None:
+    """Count the memos just filled, then drop the oldest while they hold too much."""
+    for k in keys:
+        if k not in _UNIT_MEMO_SIZE and k in _UNIT_MEMO:
+            _UNIT_MEMO_SIZE[k] = _nbytes(_UNIT_MEMO[k])
+    total = sum(_UNIT_MEMO_SIZE.values())
+    while total > UNIT_MEMO_BYTES and len(_UNIT_MEMO) > 1:
+        k, _ = _UNIT_MEMO.popitem(last=False)
+        total -= _UNIT_MEMO_SIZE.pop(k, 0)
 
 
 def gap_job(j: GapJob) -> list[UnitScore] | list[UnitPart]:
@@ -154,13 +179,15 @@ def gap_job(j: GapJob) -> list[UnitScore] | list[UnitPart]:
     setup, view, err_real = shared(j.run)
     sims = sim_obs(simulate_job(EnsembleJob(setup, j.profile, j.seeds)), view)
     err = errors_enu(view, sims)
-    parts = []
+    parts, used = [], []
     for m in j.units:
-        memo = _unit_memo(j.run, m)
+        key, memo = _unit_memo(j.run, m)
+        used.append(key)
         parts.append(UnitPart(
             segment_stats(view, sims, err_real, err, m, metrics=SCORE_METRICS, memo=memo),
             prn_tracking(view, sims, m, memo) if j.prn else None,
             bin_tracking(view, sims, m, memo) if j.bins else None))
+    _keep_memos(used)
     # Scored here where it can be: in the main process the scoring is serial time.
     return [unit_score([p]) for p in parts] if j.whole else parts
 
