@@ -163,9 +163,10 @@ def _unit_memo(run: str, mask: np.ndarray) -> tuple[tuple[str, bytes], dict]:
 
 
 def _keep_memos(keys: list[tuple[str, bytes]]) -> None:
-    """Count the memos just filled, then drop the oldest while they hold too much."""
+    """Count the memos a job used (it may have filled them further), then drop the oldest
+    while they hold too much."""
     for k in keys:
-        if k not in _UNIT_MEMO_SIZE and k in _UNIT_MEMO:
+        if k in _UNIT_MEMO:
             _UNIT_MEMO_SIZE[k] = _nbytes(_UNIT_MEMO[k])
     total = sum(_UNIT_MEMO_SIZE.values())
     while total > UNIT_MEMO_BYTES and len(_UNIT_MEMO) > 1:
