@@ -131,24 +131,31 @@ def share_runs(runs: list[Run]) -> list[str]:
 # by the run's key and the unit's epochs): a worker measures the same units of a run for table
 # after table, and a job of one seed spent half its statistics' time on the real log. The
 # memos kept hold at most this many bytes (masks and elevations of a unit's epochs: some
-# 0.8 MB a unit for an hour at 1 Hz with GSV, ten times that at 10 Hz), the least recently
+# 0.7 MB a unit for an hour at 1 Hz with GSV, about ten times that at 10 Hz), the least recently
 # used dropped first.
 UNIT_MEMO_BYTES = 256 * 2**20
 _UNIT_MEMO: OrderedDict[tuple[str, bytes], dict] = OrderedDict()
 _UNIT_MEMO_SIZE: dict[tuple[str, bytes], int] = {}
 
 
-def _nbytes(x: Any) -> int:
-    """The bytes of the arrays in a memo's values (dicts, tuples, dataclasses)."""
+def _nbytes(x: Any, seen: dict[int, int] | None = None) -> int:
+    """The bytes of the arrays in a memo's values (dicts, tuples, dataclasses), each array
+    counted once."""
+    top = seen is None
+    seen = {} if seen is None else seen
     if isinstance(x, np.ndarray):
-        return x.nbytes
-    if isinstance(x, dict):
-        return sum(_nbytes(v) for v in x.values())
-    if isinstance(x, (tuple, list)):
-        return sum(_nbytes(v) for v in x)
-    if hasattr(x, "__dataclass_fields__"):
-        return sum(_nbytes(getattr(x, f)) for f in x.__dataclass_fields__ if f != "view")
-    return 0
+        seen[id(x)] = x.nbytes
+    elif isinstance(x, dict):
+        for v in x.values():
+            _nbytes(v, seen)
+    elif isinstance(x, (tuple, list)):
+        for v in x:
+            _nbytes(v, seen)
+    elif hasattr(x, "__dataclass_fields__"):
+        for f in x.__dataclass_fields__:
+            if f != "view":  # (the run's, shared)
+                _nbytes(getattr(x, f), seen)
+    return sum(seen.values()) if top else 0
 
 
 def _unit_memo(run: str, mask: np.ndarray) -> tuple[tuple[str, bytes], dict]:

@@ -304,6 +304,16 @@ def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) 
     return np.where(w[None, :] > 0, frac, np.nan), w
 
 
+def _compared(view: RunView, epochs: np.ndarray, memo: dict | None) -> np.ndarray:
+    """(n, k) bool, a segment's compared satellite-epochs (kept in ``memo`` where given)."""
+    m = memo.get("compared") if memo else None
+    if m is None:
+        m = view.sat_ok & (epochs & view.valid)[:, None]
+        if memo is not None:
+            memo["compared"] = m
+    return m
+
+
 def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per PRN over a segment: compared satellite-epochs and those tracked by the real
@@ -316,7 +326,7 @@ def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None
         return np.zeros((2, view.prn.size)), per_seed
     hit = memo.get("prn") if memo else None
     if hit is None:
-        m = view.sat_ok & (epochs & view.valid)[:, None]
+        m = _compared(view, epochs, memo)
         fixed = np.zeros((2, view.prn.size))
         fixed[0] = m.sum(axis=0)
         fixed[1] = (view.real.tracked[0] & m).sum(axis=0)
@@ -348,7 +358,7 @@ def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None
         return np.zeros((3, nb)), per_seed
     hit = memo.get("bins") if memo else None
     if hit is None:
-        m = view.sat_ok & (epochs & view.valid)[:, None]
+        m = _compared(view, epochs, memo)
         r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
         c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0,
                     n_az - 1)
