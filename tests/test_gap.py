@@ -519,6 +519,52 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monk
         np.testing.assert_array_equal(a.bins, b.bins)
 
 
+def test_a_fitting_job_scores_every_held_out_unit_of_its_run(shared_data):
+    """A table asked with the fitting seeds on some blocks is scored on every block of the run
+    (a fold asks its chosen point on its held-out block next; another selection may ask the
+    same table on other blocks): later such requests submit no job, and score alike. Held-out
+    seeds and the whole-run unit are scored only where asked."""
+    from virtualgps.gap import tool
+    from virtualgps.gap.design import make_design
+    from virtualgps.gap.ensemble import ephemeris_of
+    from virtualgps.gap.runs import prepare_runs
+    from virtualgps.gap.simulator import FIT, HELD, Simulator
+    from virtualgps.sky import ephemeris as eph
+
+    inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
+                         truth=("static",), scene="none", tle=None, profile="holux-m1000")
+    runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
+    ephem = ephemeris_of(tle, "G")
+
+    def shift(t0: float) -> float:
+        return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, tool.SKY_SHIFT_MAX_DAYS)
+
+    prepared = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source), shift,
+                            1, None)
+    v = prepared[0].view
+    design = make_design([v.name], [v.t_unix_s], [v.valid], [60.0], 4)
+    blocks = list(range(len(design.units)))
+    whole = len(design.units)
+    assert len(blocks) == 4
+    sim = Simulator(prepared, design, 6, 1, None, source)
+    sim.request([(table, FIT, [0, 1])])
+    assert len(sim.batches) == 1
+    assert sim.has([(table, FIT, blocks)])
+    assert not sim.has([(table, FIT, [whole])]) and not sim.has([(table, HELD, [0])])
+    sim.request([(table, FIT, [2, 3])])
+    assert len(sim.batches) == 1  # (nothing submitted)
+    # the same scores as a fresh simulator asked for those blocks alone
+    other = Simulator(prepared, design, 6, 1, None, source, sim.keys)
+    other.request([(table, FIT, [3])])
+    alone, widened = other.scores(table, FIT, [3])[0].own, sim.scores(table, FIT, [3])[0].own
+    assert np.isfinite(alone[0]) and alone == widened
+    sim.request([(table, HELD, [0])])
+    assert not sim.has([(table, HELD, [1])])
+    assert sim.repeats == 0
+    sim.request([(table, FIT, [whole])])  # (the whole run: simulated again)
+    assert sim.repeats == 1 and len(sim.batches) == 3
+
+
 def test_the_choice_does_not_depend_on_how_jobs_are_cut_or_when_they_finish(tmp_path):
     """The selections go on each as its own jobs come back: on one worker (jobs in order,
     whole seed sets) and on 16 modelled workers (seed sets cut into groups, jobs finishing in

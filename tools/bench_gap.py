@@ -64,7 +64,7 @@ def once(inp: tool.GapInputs, opts: dg.Options, model_workers: int | None = None
         jobs.model(None)
     return {"wall_s": wall, "serial_s": serial, "submits": list(jobs.STATS["submits"]),
             "jobs": jobs.STATS["jobs"], "job_s": jobs.STATS["job_s"],
-            "epochs": report["simulated_epochs"],
+            "epochs": report["simulated_epochs"], "repeats": report["repeated_simulations"],
             "added": [e["name"] for e in report["effects"] if e.get("accepted")]}
 
 
@@ -158,7 +158,8 @@ def say(what: str, r: dict, n: int, first: float) -> None:
     small = sum(x < 3 * n for x in b)
     print(f"{what}: {r['wall_s']:.1f} s (serial {r['serial_s']:.1f} s), speed-up "
           f"{first / r['wall_s']:.2f}x; {r['jobs']:,} jobs, {r['job_s']:.1f} s of job time; "
-          f"{r['epochs']:,} simulated epochs ({r['epochs'] / r['wall_s']:,.0f}/s); "
+          f"{r['epochs']:,} simulated epochs ({r['epochs'] / r['wall_s']:,.0f}/s; "
+          f"{r['repeats']} tables simulated again for a seed set and run); "
           f"{len(b)} submissions, median {sorted(b)[len(b) // 2] if b else 0} jobs, "
           f"{small} under {3 * n} jobs; added: {', '.join(r['added']) or 'nothing'}",
           flush=True)

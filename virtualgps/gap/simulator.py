@@ -1,15 +1,17 @@
 """Ensembles of the prepared runs under candidate profiles, scored per held-out unit, with a cache
 (DESIGN 7.2).
 
-A request names a profile table, a seed set and runs; everything neither scored nor under way
+A request names a profile table, a seed set and units; everything neither scored nor under way
 is submitted as jobs (one per table, seed set and run: the run simulated once per seed over all
-its epochs, and every unit of the run measured where the job runs, so only the units' scores
-come back). The selections of a diagnosis (the full one and one per outer fold) run side by
-side (:func:`virtualgps.gap.select.drive`), each going on when its own units are scored. When
-the jobs submitted and those still running make fewer than several per worker, each job's
-seeds are split into groups, one job each: every seed is its own generator, and the groups'
-statistics are joined before scoring (:func:`virtualgps.gap.where.merge_stats`), so the scores
-do not depend on the split, nor on the order in which jobs finish.
+its epochs, and the units asked measured where the job runs, so only their scores come back; a
+job with the fitting seeds measures every held-out unit of its run, which the folds and the
+other selections ask of the same table later). The selections of a diagnosis (the full one
+and one per outer fold) run side by side (:func:`virtualgps.gap.select.drive`), each going on
+when its own units are scored. When the jobs submitted and those still running make fewer
+than several per worker, each job's seeds are split into groups, one job each: every seed is
+its own generator, and the groups' statistics are joined before scoring
+(:func:`virtualgps.gap.where.merge_stats`), so the scores do not depend on the split, nor on
+the order in which jobs finish.
 
 Seed sets. Set 0 fits parameters, set 1 measures the held-out gap of what set 0 fitted (with
 common random numbers the same seeds would carry the fit's luck from a run's training blocks
@@ -221,9 +223,10 @@ class Simulator:
         self.runs, self.design, self.n_seeds = runs, design, fit_seeds
         self.jobs, self.dask, self.source = jobs, dask, base_source
         self.units = design.all_units()
-        self.run_units: dict[int, list[int]] = {}
-        for u, unit in enumerate(self.units):
-            self.run_units.setdefault(unit.run, []).append(u)
+        # each run's held-out units (blocks or the run itself; not the whole-run fit units)
+        self.run_blocks: dict[int, list[int]] = {}
+        for u, unit in enumerate(design.units):
+            self.run_blocks.setdefault(unit.run, []).append(u)
         self._scores: dict[tuple[str, int, int], UnitScore] = {}
         # table object -> its key: a selection looks the same tables up thousands of times
         # (the objects are held here, so an id is never reused while its key is kept)
@@ -233,6 +236,9 @@ class Simulator:
         self.bins = any(r.view.assess.get("gsv") and r.view.assess.get("cn0") for r in runs)
         self.n_sims = 0
         self.batches: list[int] = []  # jobs per submission (for the benchmark)
+        # times each (table, seed set, run) was simulated: more than once where a later request
+        # asked units an earlier job did not measure
+        self._simulated: dict[tuple[str, int, int], int] = {}
         self.queue = JobQueue(gap_job, jobs, dask)
         # units under way: one slot per seed group, filled as the jobs come back
         self._parts: dict[tuple[str, int, int], list[UnitPart | UnitScore | None]] = {}
@@ -265,6 +271,15 @@ class Simulator:
                     todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
         if not todo:
             return
+        # A fitting-seeds job scores every held-out unit of its run (not the whole run's): the
+        # fold that asked a table on its training units asks the chosen point on its held-out
+        # unit next, and a selection that reaches the same table later (the outer groups
+        # often fit the same effect alike) asks the units the first did not hold. Each such
+        # request simulated the run again; a unit more to measure costs a share of one job.
+        for (key, seed_set, r), (_, us) in todo.items():
+            if seed_set == FIT:
+                us.update(u for u in self.run_blocks[r]
+                          if (key, FIT, u) not in self._scores and (key, FIT, u) not in self._parts)
         # Fewer jobs than several per worker, beside what still keeps the workers busy, would
         # leave workers idle while the slowest job runs: the jobs' seeds are then split into
         # groups, a job each (no seed is simulated twice, and the scores are the same).
@@ -274,6 +289,7 @@ class Simulator:
         profiles: dict[str, Any] = {}
         tagged = []
         for (key, seed_set, r), (table, us) in todo.items():
+            self._simulated[key, seed_set, r] = self._simulated.get((key, seed_set, r), 0) + 1
             if key not in profiles:
                 profiles[key] = fx.build(table, self.source)
             order = sorted(us)
@@ -302,6 +318,11 @@ class Simulator:
                     # (a whole seed set's job scored its units where it ran; seed groups are
                     # joined in seed order)
                     self._scores[k] = one if len(parts) == 1 else unit_score(parts)
+
+    @property
+    def repeats(self) -> int:
+        """Simulations of a (table, seed set, run) after its first (see :meth:`submit`)."""
+        return sum(self._simulated.values()) - len(self._simulated)
 
     def has(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> bool:
         """Whether every (table, seed set, units) item is scored."""

@@ -393,6 +393,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
         "heldout": [u.label for u in design.units],
         "simulated_epochs": sim.n_sims + n_base,
         "batches": list(sim.batches),
+        "repeated_simulations": sim.repeats,
     }
 
 
