@@ -477,10 +477,12 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monk
     t = prepared[0].view.t_unix_s
     units = (t < t[t.size // 2], t >= t[t.size // 2])
     # (weak signals, so that the seeds track differently: open sky tracks all alike)
-    prof = build_profile(fx.apply(table, {"cn0_tracking": {"cn0_zenith_dbhz": 24.0}}), source)
+    weak = fx.apply(table, {"cn0_tracking": {"cn0_zenith_dbhz": 24.0}})
+    prof = build_profile(weak, source)
 
     def job(seeds):
-        return sm.gap_job(sm.GapJob(key, prof, seeds, units, prn=True, bins=True, whole=False))
+        return sm.gap_job(sm.GapJob(key, weak, source, seeds, units, prn=True, bins=True,
+                                    whole=False))
 
     whole = job((0, 1, 2, 3, 4))
     split = [job((0, 1)), job((2, 3, 4))]
@@ -510,7 +512,8 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monk
         for m, values in whole[u].stats.sim.items():
             np.testing.assert_array_equal(merged.sim[m], values, err_msg=m)
         a = sm.unit_score([whole[u]])
-        in_job = sm.gap_job(sm.GapJob(key, prof, (0, 1, 2, 3, 4), units, True, True))[u]
+        in_job = sm.gap_job(sm.GapJob(key, weak, source, (0, 1, 2, 3, 4), units, True,
+                                      True))[u]
         assert in_job.own == a.own
         np.testing.assert_array_equal(in_job.bins, a.bins)
         b = sm.unit_score([split[0][u], split[1][u]])
