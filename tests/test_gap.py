@@ -451,16 +451,12 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
     assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}
 
 
-def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monkeypatch):
-    """A batch with few jobs splits their seeds over more jobs: the units' scores (gap, every
-    metric's distance, the per-PRN and per-sky-bin counts) are the same to the bit as from one
-    job over all the seeds (the seed-against-seed agreement is paired over all of them), and
-    whether a worker kept what the real log shows in each unit or had to drop it."""
-    from virtualgps.gap import simulator as sm
+def _prepared_hour(shared_data: Path) -> tuple[list, dict, str]:
+    """The MT3339 static hour prepared against ``holux-m1000`` (GPS): its runs, the profile
+    table and its source."""
     from virtualgps.gap import tool
-    from virtualgps.gap.ensemble import EnsembleJob, ephemeris_of, simulate_job
-    from virtualgps.gap.runs import prepare_runs, sim_obs
-    from virtualgps.receiver.profiles import build_profile
+    from virtualgps.gap.ensemble import ephemeris_of
+    from virtualgps.gap.runs import prepare_runs
     from virtualgps.sky import ephemeris as eph
 
     inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
@@ -471,8 +467,20 @@ def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monk
     def shift(t0: float) -> float:
         return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, tool.SKY_SHIFT_MAX_DAYS)
 
-    prepared = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source), shift,
-                            1, None)
+    return (prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source), shift,
+                         1, None), table, source)
+
+
+def test_scores_do_not_depend_on_how_seeds_are_split_into_jobs(shared_data, monkeypatch):
+    """A batch with few jobs splits their seeds over more jobs: the units' scores (gap, every
+    metric's distance, the per-PRN and per-sky-bin counts) are the same to the bit as from one
+    job over all the seeds (the seed-against-seed agreement is paired over all of them), and
+    whether a worker kept what the real log shows in each unit or had to drop it."""
+    from virtualgps.gap import simulator as sm
+    from virtualgps.gap.ensemble import EnsembleJob, simulate_job
+    from virtualgps.gap.runs import sim_obs
+
+    prepared, table, source = _prepared_hour(shared_data)
     key = sm.share_runs(prepared)[0]
     t = prepared[0].view.t_unix_s
     units = (t < t[t.size // 2], t >= t[t.size // 2])
@@ -527,23 +535,10 @@ def test_a_fitting_job_scores_every_held_out_unit_of_its_run(shared_data):
     (a fold asks its chosen point on its held-out block next; another selection may ask the
     same table on other blocks): later such requests submit no job, and score alike. Held-out
     seeds and the whole-run unit are scored only where asked."""
-    from virtualgps.gap import tool
     from virtualgps.gap.design import make_design
-    from virtualgps.gap.ensemble import ephemeris_of
-    from virtualgps.gap.runs import prepare_runs
     from virtualgps.gap.simulator import FIT, HELD, Simulator
-    from virtualgps.sky import ephemeris as eph
 
-    inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
-                         truth=("static",), scene="none", tle=None, profile="holux-m1000")
-    runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
-    ephem = ephemeris_of(tle, "G")
-
-    def shift(t0: float) -> float:
-        return eph.sidereal_shift_s(t0, ephem.epoch_center_unix_s, tool.SKY_SHIFT_MAX_DAYS)
-
-    prepared = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source), shift,
-                            1, None)
+    prepared, table, source = _prepared_hour(shared_data)
     v = prepared[0].view
     design = make_design([v.name], [v.t_unix_s], [v.valid], [60.0], 4)
     blocks = list(range(len(design.units)))
