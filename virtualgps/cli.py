@@ -337,12 +337,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             status.show(_fleet_status(progress(fleet)))
 
     try:
-        # --duration counts simulated seconds from here, not a wall-clock timer: a timer
-        # races the epochs on whole seconds and sends 3 or 4 of them in 3 s.
-        until = None if args.duration is None else fleet.clock.now_unix_s() + args.duration
+        # --duration counts simulated seconds from the first epoch, not a wall-clock timer:
+        # a timer races the epochs on whole seconds and sends 3 or 4 of them in 3 s.
         daemon.freeze_heap()
         daemon.run_receivers(receivers, fleet.provider, fleet.clock, stop, on_epoch,
-                             waiter=fleet.waiter, until_unix_s=until)
+                             waiter=fleet.waiter, duration_s=args.duration)
     finally:
         status.end()
         fleet.close()

@@ -748,7 +748,7 @@ def run_receivers(
     on_epoch: Callable[[LiveReceiver, Fixes, int], None] | None = None,
     max_epochs: int | None = None,
     waiter=None,
-    until_unix_s: float | None = None,
+    duration_s: float | None = None,
 ) -> None:
     """The live loop of one or many receivers: each emits its epochs on whole multiples of its
     period; receivers due at once are simulated together, in chunks (:func:`chunks_due`).
@@ -773,10 +773,15 @@ def run_receivers(
     waiter : what the loop waits in: ``wait(deadline_s, fds)``, ``take_client_ready()`` and
         ``serve()`` (a :class:`virtualgps.run.fleet.ptyloop.PtyLoop` serving the devices;
         default: ``select`` on the pose source and the devices' own descriptors)
-    until_unix_s : simulated UTC, s: the loop ends before the first epoch due after it (so
-        ``--duration S`` sends exactly the S × rate epochs due within S s, whatever the phase
-        of the start within a second)
+    duration_s : simulated seconds, counted from the first epoch due: the loop ends before the
+        first epoch due at or after then, so ``--duration S`` sends the S × rate epochs of
+        [first, first + S) whatever the phase of the start within a second, and however long
+        the set-up took after the receivers' clock started
     """
+    # (Counted from the clock's reading just before the loop, an epoch already due when a
+    # slow set-up crossed a whole second made S × rate + 1.)
+    until_unix_s = (None if duration_s is None
+                    else min(m.t_next_unix_s for m in members) + duration_s)
     if waiter is None:
         waiter = _SelectWaiter([m.device for m in members])
     by_device = {id(m.device): m for m in members}
@@ -807,7 +812,7 @@ def run_receivers(
             for m in members if ready is None else [by_device[id(d)] for d in ready]:
                 m.service_client()  # (may change a receiver's rate and next epoch)
             t_due = min(m.t_next_unix_s for m in members)
-            if until_unix_s is not None and t_due > until_unix_s + 1e-9:
+            if until_unix_s is not None and t_due > until_unix_s - 1e-6:
                 return
             deadline = clock.monotonic_at(t_due)
             if deadline - lead_s <= time.monotonic():

@@ -271,14 +271,14 @@ def worker_main(job: WorkerJob, conn) -> None:
     stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    until: list[float | None] = [None]
+    duration_s: list[float | None] = [None]
 
     def start_clock(devices, start_unix_s):
         conn.send(("devices", [(str(d.slave_path), str(d.link_path)) for d in devices]))
         msg = conn.recv()
         if msg[0] != "go":
             raise _Stopped
-        _, mono0, wall0, until[0] = msg
+        _, mono0, wall0, duration_s[0] = msg
         logging.getLogger().setLevel(job.log_level)
         if source is not None:
             source.accept()  # (the parent connects right after the go)
@@ -309,7 +309,7 @@ def worker_main(job: WorkerJob, conn) -> None:
     daemon.freeze_heap()
     try:
         daemon.run_receivers(fleet.receivers, fleet.provider, fleet.clock, stop, on_epoch,
-                             waiter=fleet.waiter, until_unix_s=until[0])
+                             waiter=fleet.waiter, duration_s=duration_s[0])
     finally:
         fleet.close()
         stop.close()
@@ -345,7 +345,7 @@ def run_workers(
     n_workers : worker processes (each gets a contiguous share)
     stop : set to end the run
     start_unix_s : ``--start-time`` (None: the wall clock)
-    duration_s : ``--duration``: simulated seconds from the start
+    duration_s : ``--duration``: simulated seconds from the first epoch
     on_device : called with (slave path, link) of each device, in the fleet's order, before
         the first epoch
     on_status : called with the fleet's :class:`Progress` about once a second
@@ -409,9 +409,9 @@ def run_workers(
         log.info("%d receivers over %d worker processes (%s receivers each)", len(members),
                  len(parts), "-".join(sorted({str(len(p)) for p in parts}, key=int)))
         clock = poseproviders.SimClock(start_unix_s)
-        until = None if duration_s is None else clock.now_unix_s() + duration_s
+        # (each worker counts --duration from its receivers' first epoch, as one process does)
         for c in conns:
-            c.send(("go", *clock.anchor, until))
+            c.send(("go", *clock.anchor, duration_s))
         if live_source is not None:
             owner = {m.receiver_id: i for i, part in enumerate(parts) for m in part}
             forwarder = Forwarder(live_source, addresses, owner, fleet_ids)
