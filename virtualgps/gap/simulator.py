@@ -266,12 +266,14 @@ class Simulator:
         set, units) items: one per table, seed set and run, scoring that run's missing units.
         Per-sky-bin counts come with the fitting seeds (learned sky masks are fitted),
         per-PRN counts with the held-out seeds (the tracking disagreement)."""
+        def wanted(k: tuple[str, int, int]) -> bool:  # neither scored nor under way
+            return k not in self._scores and k not in self._parts
+
         todo: dict[tuple[str, int, int], tuple[dict[str, Any], set[int]]] = {}
         for table, seed_set, units in items:
             key = self.key(table)
             for u in units:
-                k = (key, seed_set, u)
-                if k not in self._scores and k not in self._parts:
+                if wanted((key, seed_set, u)):
                     todo.setdefault((key, seed_set, self.units[u].run), (table, set()))[1].add(u)
         if not todo:
             return
@@ -282,8 +284,7 @@ class Simulator:
         # request simulated the run again; a unit more to measure costs a share of one job.
         for (key, seed_set, r), (_, us) in todo.items():
             if seed_set == FIT:
-                us.update(u for u in self.run_blocks[r]
-                          if (key, FIT, u) not in self._scores and (key, FIT, u) not in self._parts)
+                us.update(u for u in self.run_blocks[r] if wanted((key, FIT, u)))
         # Fewer jobs than several per worker, beside what still keeps the workers busy, would
         # leave workers idle while the slowest job runs: the jobs' seeds are then split into
         # groups, a job each (no seed is simulated twice, and the scores are the same).
