@@ -581,7 +581,7 @@ def test_serial_port_runs_one_receiver_and_a_fleet_gets_ptys(tmp_path):
     one = subprocess.run(run, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert one.returncode == 0, one.stderr
     assert one.stdout.splitlines()[0] == "device: loop://"
-    assert "stopped after 2 epochs" in one.stderr or "stopped after 3 epochs" in one.stderr
+    assert "stopped after 2 epochs" in one.stderr  # (the epochs of 2 s from the first)
     two = subprocess.run([*run, "--receivers", "2"], capture_output=True, text=True, timeout=60,
                          cwd=tmp_path)
     assert two.returncode == 2 and two.stderr.strip().endswith(

@@ -338,7 +338,10 @@ def test_a_fleets_status_line_adds_up_its_workers(tmp_path):
         out += chunk
     proc.wait(30)
     os.close(master)
-    assert proc.returncode == 0, proc.stderr.read()
+    err = proc.stderr.read()
+    assert proc.returncode == 0, err
+    # each worker counts --duration from its receivers' first epoch: 4 s at 5 Hz, each
+    assert "stopped after 80 epochs" in err, err[-500:]
     lines = [ln for ln in out.decode().replace("\r", "\n").split("\n") if "receivers, " in ln]
     assert lines, out[-500:]
     last = lines[-1]
