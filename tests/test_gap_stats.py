@@ -45,6 +45,25 @@ def test_band_holds_exactly_the_values_not_flagged():
             assert inside == (p > alpha) or abs(real - lo) < 0.1 or abs(real - hi) < 0.1
 
 
+def test_bands_stay_within_the_values_a_metric_takes():
+    """A share's band runs from 0 to 1 and a scale's from 0 (a fix fraction's normal
+    prediction interval "0.99..1.01" read as fixes that are not there; "-..0.1" changes per
+    minute as a value below nothing), and still holds every value not flagged."""
+    rng = np.random.default_rng(2)
+    # (each with a value at the metric's end beside its seeds: not flagged, inside the band)
+    for metric, sims, edge in (("fix_fraction", 1.0 - rng.uniform(0.0, 0.004, 30), 1.0),
+                               ("dgps_fraction", np.zeros(30), 0.0),
+                               ("used_changes_per_min", rng.uniform(0.0, 0.05, 30), 0.0)):
+        for alpha in (0.05, 0.001):
+            lo, hi = bands.band(metric, sims, alpha)
+            share = bands.METRICS[metric].share
+            assert lo >= 0.0 and (hi <= 1.0 or not share), (metric, lo, hi)
+            assert bands.judge(metric, edge, sims).p > alpha and lo <= edge <= hi
+    # an ensemble that cannot flag: every value the metric takes
+    assert bands.band("fix_fraction", [0.5, math.nan], 0.05) == (0.0, 1.0)
+    assert bands.band("lag_s", [0.5, math.nan], 0.05) == (-math.inf, math.inf)
+
+
 def test_practical_floor_makes_print_digits_no_gap():
     sims = np.full(50, 0.9994)
     j = bands.judge("fix_fraction", 1.0, sims)
@@ -474,3 +493,18 @@ def test_causes_that_explain_nothing_are_not_called_causes():
         == "  cause: flat earth: up to 2.1 m"
     what = rp._cause_rows(report)[1]["what"]
     assert "3.0x smaller" in what and what.endswith("under 1 m, left as it is")
+
+
+def test_the_terminal_headline_says_each_value_in_its_unit():
+    from virtualgps.gap import tool
+
+    rows = [{"label": "CEP50", "unit": "m", "real": 0.117, "simulated": 0.715, "sim_lo": 0.0106,
+             "sim_hi": 2.08, "outside": False, "calibrated": None},
+            {"label": "satellites used", "unit": "", "real": 8.0, "simulated": 10.0,
+             "sim_lo": 9.5, "sim_hi": 10.5, "outside": True, "calibrated": None}]
+    report = {"headline": rows, "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [], "located": [], "profile": "holux-m1000",
+              "gap_baseline": 2.48, "causes": []}
+    lines = tool.summary_lines(report)
+    assert lines[0] == "CEP50: real 0.117 m, simulated 0.715 m (0.0106..2.08)"
+    assert lines[1] == "satellites used: real 8, simulated 10 (9.5..10.5)  <- gap"

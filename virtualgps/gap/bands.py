@@ -68,6 +68,7 @@ class MetricSpec:
     nan_high : a missing seed value means "longer than the segment shows" (rank judged)
     score : part of the gap score (else located only)
     unit : for people
+    share : a share of epochs or satellites, in [0, 1] (a band stops at those ends)
     """
 
     kind: str
@@ -77,6 +78,17 @@ class MetricSpec:
     nan_high: bool = False
     score: bool = True
     unit: str = ""
+    share: bool = False
+
+    def clip(self, lo: float, hi: float) -> tuple[float, float]:
+        """A band within the values the metric can take: scales from 0, shares 0 to 1 (the
+        prediction interval of a normal, widened by the floor, runs past them: a fix
+        fraction "0.99..1.01" means "0.99 or more")."""
+        if self.kind == "log" or self.share:
+            lo = max(lo, 0.0)
+        if self.share:
+            hi = min(hi, 1.0)
+        return lo, hi
 
 
 # Floors: a printed digit or two, or what a user would call the same receiver. Positions print
@@ -94,17 +106,17 @@ METRICS: dict[str, MetricSpec] = {
     # seeds' values pile up on the grid's 0 and 0.1 s, a spread the normal prediction
     # understates: a null log's 0.3 s on a 160 s block passed for a filter)
     "smoothing_s": MetricSpec("log", 0.5, 0.5, 0.05, unit="s"),
-    "frozen_fraction": MetricSpec("lin", floor=0.02),
+    "frozen_fraction": MetricSpec("lin", floor=0.02, share=True),
     "sats_used_mean": MetricSpec("log", 0.5, 0.5, 0.0, unit="satellites"),
     "used_changes_per_min": MetricSpec("log", 0.5, 0.1, 0.05, unit="/min"),
-    "tracked_agreement": MetricSpec("lin", floor=0.05),
-    "tracked_share": MetricSpec("lin", floor=0.03),
+    "tracked_agreement": MetricSpec("lin", floor=0.05, share=True),
+    "tracked_share": MetricSpec("lin", floor=0.03, share=True),
     "cn0_median_dbhz": MetricSpec("lin", floor=1.0, unit="dB-Hz"),
     "used_el_p05_deg": MetricSpec("lin", floor=1.0, unit="°"),
     "hdop_median": MetricSpec("log", 0.2, 0.1, 0.0),
-    "fix_fraction": MetricSpec("lin", floor=0.01),
+    "fix_fraction": MetricSpec("lin", floor=0.01, share=True),
     "ttff_s": MetricSpec("log", 5.0, 2.0, 0.05, nan_high=True, unit="s"),
-    "dgps_fraction": MetricSpec("lin", floor=0.02),
+    "dgps_fraction": MetricSpec("lin", floor=0.02, share=True),
     "eq4_deg": MetricSpec("log", 1e-6, 5e-6, 0.05, score=False, unit="°"),
 }
 SCORE_METRICS = tuple(m for m, s in METRICS.items() if s.score)
@@ -226,7 +238,8 @@ def judge(metric: str, real: float, sims: Sequence[float] | np.ndarray) -> Judge
 def band(metric: str, sims: Sequence[float] | np.ndarray, alpha: float) -> tuple[float, float]:
     """The range of real values not flagged at two-sided level ``alpha``: the prediction
     interval of one more draw (or the rank interval for rank-judged metrics), widened by the
-    practical floor. (-inf, inf) when the ensemble cannot flag at that level.
+    practical floor, within the values the metric can take (:meth:`MetricSpec.clip`): all
+    of them when the ensemble cannot flag at that level.
 
     sims : (s,) the seeds' values; returns (lo, hi) in the metric's units
     """
@@ -238,16 +251,16 @@ def band(metric: str, sims: Sequence[float] | np.ndarray, alpha: float) -> tuple
         yy = np.sort(np.where(np.isfinite(y), y, np.inf))
         k = int(math.floor(alpha / 2.0 * (s + 1)))
         if k < 1:
-            return -math.inf, math.inf
+            return spec.clip(-math.inf, math.inf)
         centre = float(np.median(yy))
         floor = max(spec.floor, spec.rel_floor * abs(centre)) if math.isfinite(centre) \
             else spec.floor
         lo, hi = float(yy[k - 1]), float(yy[s - k])
         if math.isfinite(centre):
             lo, hi = min(lo, centre - floor), max(hi, centre + floor)
-        return lo, hi
+        return spec.clip(lo, hi)
     if fin.size < MIN_SEEDS:
-        return -math.inf, math.inf
+        return spec.clip(-math.inf, math.inf)
     g = _g(spec, fin)
     m, sd = float(np.mean(g)), float(np.std(g, ddof=1))
     centre = float(_g_inv(spec, m))
@@ -257,10 +270,8 @@ def band(metric: str, sims: Sequence[float] | np.ndarray, alpha: float) -> tuple
     hi = float(_g_inv(spec, _g(spec, centre + floor) + half))
     lo_edge = centre - floor
     lo = float(_g_inv(spec, _g(spec, lo_edge) - half)) if (
-        spec.kind != "log" or lo_edge > 0) else -math.inf
-    if spec.kind == "log" and lo_edge > 0 and lo < 0:
-        lo = 0.0
-    return lo, hi
+        spec.kind != "log" or lo_edge > 0) else 0.0
+    return spec.clip(lo, hi)
 
 
 def bh_alpha(p_values: Sequence[float] | np.ndarray, q: float = FDR_Q) -> float:

@@ -570,8 +570,10 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
     for h in report["headline"]:
         cal = (f", calibrated {_num(h['calibrated'])}" if h.get("calibrated") is not None
                else "")
-        lines.append(f"{h['label']}: real {_num(h['real'])} {h['unit']}, simulated "
-                     f"{_num(h['simulated'])} ({_num(h['sim_lo'])}..{_num(h['sim_hi'])}){cal}"
+        unit = f" {h['unit']}" if h["unit"] else ""
+        lines.append(f"{h['label']}: real {_num(h['real'])}{unit}, simulated "
+                     f"{_num(h['simulated'])}{unit} ({_num(h['sim_lo'])}..{_num(h['sim_hi'])})"
+                     f"{cal}"
                      + ("  <- gap" if h["outside"] else ""))
     outer = report.get("outer") or {}
     scheme = report["design"]["scheme"]
