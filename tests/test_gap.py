@@ -423,6 +423,49 @@ def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
     assert report["where"]  # the located gaps still stand
 
 
+def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
+    """A fork copies only the forking thread: a module the located gaps' thread is importing
+    stays locked in the worker, which hangs at its first import of it (a self-check in the
+    suite hung so, every worker stuck on ``from scipy.signal import lfilter``). No worker is
+    forked while that thread lives."""
+    import multiprocessing
+    import os
+    import threading
+
+    from virtualgps.gap import synthetic, tool
+    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
+    from virtualgps.sky.ephemeris import default_tle_path
+    from virtualgps.sky.scene import load_scene
+
+    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
+    scene = load_scene(scene_dir)
+    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
+                              str(default_tle_path()))
+    inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene="none", tle=tr.tle,
+                         profile=str(tr.profile))
+    forks: list[list[str]] = []
+    watching = [True]
+    # (a hook cannot be removed: it stops recording when the test ends)
+    os.register_at_fork(before=lambda: forks.append([t.name for t in threading.enumerate()])
+                        if watching[0] else None)
+
+    def unstick() -> None:  # (hung workers fail the test, not the suite's clock)
+        for child in multiprocessing.active_children():
+            child.kill()
+
+    watchdog = threading.Timer(120.0, unstick)
+    watchdog.start()
+    try:
+        report, _, _ = tool.diagnose(inp, dg.Options(seeds=4, fit_seeds=3, jobs=2,
+                                                     effects=("latency",)))
+    finally:
+        watchdog.cancel()
+        watching[0] = False
+    assert report["design"]["claims"] and forks  # choices were made, on forked workers
+    assert not [names for names in forks
+                if any(n.startswith("ThreadPoolExecutor") for n in names)], forks
+
+
 @pytest.mark.slow
 def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared_data,
                                                                           tmp_path):

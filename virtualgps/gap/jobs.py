@@ -100,6 +100,24 @@ def _pool(n: int) -> ProcessPoolExecutor:
     return pool
 
 
+def _noop(_: Any = None) -> None:
+    return None
+
+
+def start_workers(jobs: int | None = None, dask_address: str | None = None) -> None:
+    """Fork the local worker processes now (a pool made after the last :func:`share` is
+    forked at its first job otherwise). Call it before this process starts a thread of its
+    own: a fork copies only the forking thread, and a module another thread is importing
+    stays locked in the child, which hangs at its first import of that module (seen in the
+    test suite: every worker stuck on ``from scipy.signal import lfilter`` while the located
+    gaps' thread imported scipy.signal for the first time). Nothing to do for Dask, one
+    worker or the model."""
+    if _MODEL or dask_address is not None or _local_workers(jobs) <= 1:
+        return
+    # (a fork-context pool starts all its workers at its first job)
+    _pool(_local_workers(jobs)).submit(_noop).result()
+
+
 def shutdown(wait: bool = True) -> None:
     """Stop the local worker pools and close the Dask clients of this process."""
     for pool in _POOLS.values():

@@ -25,7 +25,7 @@ from virtualgps.gap import select as sel
 from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
-from virtualgps.gap.jobs import modelling, unshare
+from virtualgps.gap.jobs import modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
@@ -245,6 +245,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
             causes.append(extra)
     georef = cz.georeference(runs, profile.georef)
     keys = share_runs(runs)
+    # (forked before the located gaps' thread starts: see start_workers)
+    start_workers(opts.jobs, opts.dask)
     # The located gaps are judged in a thread while the workers simulate the candidates (not
     # where the benchmark models workers in this process: the thread would share their time).
     judging = ThreadPoolExecutor(1) if not modelling() else _Here()
