@@ -297,6 +297,52 @@ def distance(z: float) -> float:
     return float(min(D_CAP, max(0.0, abs(z) - DEAD_ZONE_Z)))
 
 
+def distances_many(metric: str, reals: np.ndarray, judged: Sequence[Judged],
+                   sims: Sequence[np.ndarray]) -> np.ndarray:
+    """Score distances (:func:`distance` of :func:`judge`'s z, no reference) of many values
+    against many ensembles of one metric at once: each ``reals[b]`` judged as the real value
+    against each ensemble ``t``.
+
+    reals : (B,) values (NaN: none, its column NaN); judged : (T,) :func:`judge` of any value
+    against each ensemble (it gives the centre, spread and path); sims : (T,) each ensemble's
+    seeds' values (read where an ensemble is rank-judged). Returns (T, B), NaN where an
+    ensemble cannot judge.
+    """
+    r_all = np.asarray(reals, dtype=float)
+    fin = np.isfinite(r_all)
+    out = np.full((len(judged), r_all.size), np.nan)
+    if fin.any():
+        out[:, fin] = _distances_finite(metric, r_all[fin], judged, sims)
+    return out
+
+
+def _distances_finite(metric: str, r: np.ndarray, judged: Sequence[Judged],
+                      sims: Sequence[np.ndarray]) -> np.ndarray:
+    spec = METRICS[metric]
+    out = np.full((len(judged), r.size), np.nan)
+    normal = [t for t, j in enumerate(judged) if not j.rank and math.isfinite(j.sd_g)]
+    for t, j in enumerate(judged):
+        if j.rank:
+            out[t] = [distance(judge(metric, float(x), sims[t]).z) for x in r]
+    if not normal:
+        return out
+    centre = np.array([judged[t].centre for t in normal])[:, None]
+    sd = np.array([judged[t].sd_g for t in normal])[:, None]
+    n = np.array([judged[t].n for t in normal])[:, None]
+    floor = np.maximum(spec.floor, spec.rel_floor * np.abs(centre))
+    # (as _predictive, for every pair at once)
+    sign = np.where(r[None, :] > centre, 1.0, -1.0)
+    d = np.abs(_g(spec, r)[None, :] - _g(spec, centre + sign * floor))
+    scale = sd * np.sqrt(1.0 + 1.0 / n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(scale > 0, 2.0 * special.stdtr(n - 1, -d / np.where(scale > 0, scale, 1.0)),
+                     np.where(d > 0, 0.0, 1.0))
+    z = np.minimum(Z_CAP, -special.ndtri(np.maximum(p, 1e-300) / 2.0))
+    z = np.where((np.abs(r[None, :] - centre) <= floor) | (p >= 1.0), 0.0, z)
+    out[normal] = np.clip(z - DEAD_ZONE_Z, 0.0, D_CAP)
+    return out
+
+
 def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) -> float:
     """One metric's score distance for a candidate, guarded by the profile under test.
 

@@ -59,11 +59,14 @@ class UnitScore:
     (:func:`virtualgps.gap.where.judge_scored`) and (where asked) the per-PRN and per-sky-bin
     tracking counts (see :func:`virtualgps.gap.where.prn_tracking`,
     :func:`virtualgps.gap.where.bin_tracking`). Its gap is read through
-    :meth:`Simulator.gap`, beside the reference's judgments of the same unit."""
+    :meth:`Simulator.gap`, beside the reference's judgments of the same unit. ``seeds``:
+    (metrics, seeds) each judged metric's per-seed values, in ``judged``'s order (a fit's
+    interval judges them as if real, :func:`virtualgps.gap.select.refit_points`)."""
 
     judged: dict[str, tuple[float, Judged]]
     prn: np.ndarray | None = None
     bins: np.ndarray | None = None
+    seeds: np.ndarray | None = None
 
     @property
     def own(self) -> tuple[float, dict[str, float]]:
@@ -89,7 +92,9 @@ def _mean(x: list[float]) -> float:
 
 def unit_score(parts: list[UnitPart]) -> UnitScore:
     """One unit's score from its parts over seed groups (in seed order)."""
-    judged = judge_scored(merge_stats([p.stats for p in parts]))
+    stats = merge_stats([p.stats for p in parts])
+    judged = judge_scored(stats)
+    seeds = np.array([stats.sim[m] for m in judged], dtype=float)
 
     def means(which: str) -> np.ndarray | None:
         got = [getattr(p, which) for p in parts]
@@ -97,7 +102,7 @@ def unit_score(parts: list[UnitPart]) -> UnitScore:
             return None
         return tracking_means(got[0][0], np.concatenate([g[1] for g in got], axis=-2))
 
-    return UnitScore(judged, means("prn"), means("bins"))
+    return UnitScore(judged, means("prn"), means("bins"), seeds)
 
 
 @dataclass(frozen=True)

@@ -350,8 +350,8 @@ def _label_index(label: str) -> int:
 
 def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict, dict]:
     """The fitted parameters of the injected effects as the report gives them, their
-    near-optimal intervals (the grid points within the seeds' noise of the best) and the grids
-    those were fitted over."""
+    intervals (``fit.intervals``: the near-optimal grid points and those refits picked) and
+    the grids those were fitted over."""
     params, intervals, grids = {}, {}, {}
     for e in report["effects"]:
         if e["name"] in names and e.get("accepted"):
