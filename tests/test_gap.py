@@ -400,17 +400,25 @@ def test_gap_takes_the_tle_set_replay_takes(shared_data):
     assert "2017" in Path(tle).name
 
 
-def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
-    """Too short for guarded blocks: a plain warning, the located gaps alone, no effect."""
-    from virtualgps.gap import synthetic, tool
+def _latency_trial(tmp_path: Path):
+    """The self-check's first latency trial in the bundled scene (a 15-minute synthetic log
+    with its truth, TLE set and profile)."""
+    from virtualgps.gap import synthetic
     from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
     from virtualgps.sky.ephemeris import default_tle_path
     from virtualgps.sky.scene import load_scene
 
     scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
     scene = load_scene(scene_dir)
-    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
-                              str(default_tle_path()))
+    return synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
+                                str(default_tle_path()))
+
+
+def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
+    """Too short for guarded blocks: a plain warning, the located gaps alone, no effect."""
+    from virtualgps.gap import tool
+
+    tr = _latency_trial(tmp_path)
     lines = tr.real.read_text().splitlines()
     starts = [i for i, ln in enumerate(lines) if ln.startswith("$GPGGA")]
     short = tmp_path / "ten.nmea"
@@ -432,15 +440,9 @@ def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
     import os
     import threading
 
-    from virtualgps.gap import synthetic, tool
-    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
-    from virtualgps.sky.ephemeris import default_tle_path
-    from virtualgps.sky.scene import load_scene
+    from virtualgps.gap import tool
 
-    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
-    scene = load_scene(scene_dir)
-    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
-                              str(default_tle_path()))
+    tr = _latency_trial(tmp_path)
     inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene="none", tle=tr.tle,
                          profile=str(tr.profile))
     forks: list[list[str]] = []
@@ -610,15 +612,9 @@ def test_the_choice_does_not_depend_on_how_jobs_are_cut_or_when_they_finish(tmp_
     """The selections go on each as its own jobs come back: on one worker (jobs in order,
     whole seed sets) and on 16 modelled workers (seed sets cut into groups, jobs finishing in
     the order of their own run times) the diagnosis is the same."""
-    from virtualgps.gap import jobs, synthetic, tool
-    from virtualgps.run.config import BUNDLED_SCENES_DIR, DEFAULT_SCENE
-    from virtualgps.sky.ephemeris import default_tle_path
-    from virtualgps.sky.scene import load_scene
+    from virtualgps.gap import jobs, tool
 
-    scene_dir = str(BUNDLED_SCENES_DIR / DEFAULT_SCENE)
-    scene = load_scene(scene_dir)
-    tr = synthetic.make_trial("latency", 0, tmp_path, scene, scene_dir, str(scene.tle_path),
-                              str(default_tle_path()))
+    tr = _latency_trial(tmp_path)
     inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene="none", tle=tr.tle,
                          profile=str(tr.profile))
     opts = dg.Options(seeds=6, jobs=1, effects=("latency", "nav_filter"))
