@@ -510,6 +510,24 @@ def test_the_terminal_headline_says_each_value_in_its_unit():
     assert lines[1] == "satellites used: real 8, simulated 10 (9.5..10.5)  <- gap"
 
 
+def test_many_values_against_many_ensembles_are_judged_as_one_by_one():
+    """distances_many is judge's distance for each pair: normal ensembles, rank-judged ones
+    (seeds with no value), a degenerate one, one too small to judge, and values with none."""
+    rng = np.random.default_rng(3)
+    for metric in ("cep50_m", "fix_fraction", "ttff_s", "lag_s"):
+        ens = [np.exp(rng.normal(1.0, 0.5, 8)), np.full(8, 2.0),
+               np.array([np.nan] * 3 + list(rng.uniform(10.0, 60.0, 5))),
+               np.array([1.0, np.nan, np.nan, np.nan])]
+        if metric == "fix_fraction":
+            ens[0] = 1.0 - rng.uniform(0.0, 0.05, 8)
+        values = np.concatenate([np.exp(rng.normal(1.0, 1.0, 12)), [0.0, 2.0, np.nan]])
+        judged = [bands.judge(metric, 1.0, e) for e in ens]
+        got = bands.distances_many(metric, values, judged, ens)
+        want = np.array([[bands.distance(bands.judge(metric, float(v), e).z)
+                          if math.isfinite(v) else math.nan for v in values] for e in ens])
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
 class _GridSim:
     """A stand-in for the Simulator's scores: grid point k's seeds of each seed set, per unit
     (only :meth:`scores` is read by a fit's refits)."""
