@@ -562,8 +562,7 @@ def _cold_start_fit(rng: np.random.Generator, truth_k: int, spread: float, n_uni
             for u in range(n_units):
                 seeds = draw(v, 8)
                 judged = {m: (real[u][m], bands.judge(m, real[u][m], seeds[m])) for m in seeds}
-                scores[(k, seed_set, u)] = UnitScore(judged,
-                                                     seeds=np.array([seeds[m] for m in judged]))
+                scores[(k, seed_set, u)] = UnitScore(judged, seeds=seeds)
     units = list(range(n_units))
     j = {s: np.array([np.mean([where.gap_score(scores[(k, s, u)].judged)[0] for u in units])
                       for k in range(len(values))]) for s in (FIT, HELD)}

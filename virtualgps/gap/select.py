@@ -248,17 +248,16 @@ def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequen
         total: np.ndarray | None = None
         for k in range(len(units)):
             sc = hat[k]
-            if sc.seeds is None or sc.seeds.ndim != 2 or not sc.judged:
+            if not sc.seeds:
                 continue
-            n_b = sc.seeds.shape[1]
+            n_b = next(iter(sc.seeds.values())).size
             d_sum, d_n = np.zeros((n_t, n_b)), np.zeros((n_t, n_b))
-            for row, m in enumerate(sc.judged):
+            for m, values in sc.seeds.items():
                 have = [t for t in range(n_t) if m in grid[t][k].judged]
                 if not have:
                     continue
-                d = distances_many(m, sc.seeds[row], [grid[t][k].judged[m][1] for t in have],
-                                   [grid[t][k].seeds[list(grid[t][k].judged).index(m)]
-                                    for t in have])
+                d = distances_many(m, values, [grid[t][k].judged[m][1] for t in have],
+                                   [grid[t][k].seeds[m] for t in have])
                 ok = np.isfinite(d)
                 d_sum[have] += np.where(ok, d, 0.0)
                 d_n[have] += ok

@@ -60,13 +60,13 @@ class UnitScore:
     tracking counts (see :func:`virtualgps.gap.where.prn_tracking`,
     :func:`virtualgps.gap.where.bin_tracking`). Its gap is read through
     :meth:`Simulator.gap`, beside the reference's judgments of the same unit. ``seeds``:
-    (metrics, seeds) each judged metric's per-seed values, in ``judged``'s order (a fit's
-    interval judges them as if real, :func:`virtualgps.gap.select.refit_points`)."""
+    {metric: (seeds,)} each judged metric's per-seed values (a fit's interval judges them as
+    if real, :func:`virtualgps.gap.select.refit_points`)."""
 
     judged: dict[str, tuple[float, Judged]]
     prn: np.ndarray | None = None
     bins: np.ndarray | None = None
-    seeds: np.ndarray | None = None
+    seeds: dict[str, np.ndarray] | None = None
 
     @property
     def own(self) -> tuple[float, dict[str, float]]:
@@ -94,7 +94,7 @@ def unit_score(parts: list[UnitPart]) -> UnitScore:
     """One unit's score from its parts over seed groups (in seed order)."""
     stats = merge_stats([p.stats for p in parts])
     judged = judge_scored(stats)
-    seeds = np.array([stats.sim[m] for m in judged], dtype=float)
+    seeds = {m: np.asarray(stats.sim[m], dtype=float) for m in judged}
 
     def means(which: str) -> np.ndarray | None:
         got = [getattr(p, which) for p in parts]
