@@ -4,6 +4,7 @@ the logged system's satellites the candidate is left out with the reason."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from test_cli import write_walk
 from test_nmea_multignss import multi_profile
@@ -48,6 +49,13 @@ def test_a_two_system_log_against_a_gps_profile_names_constellations(two_system_
     assert set(by) == {"GPS", "GLONASS"}
     assert by["GLONASS"]["baseline"] > 0.5 > 0.2 > by["GLONASS"]["final"]
     assert by["GPS"]["final"] < 0.2
+    # the figures' baseline arrays (made while the effects were chosen) with the final's added
+    assert figures.waterfall_labels == ("baseline", *(f"+{e['name']}" for e in added))
+    assert figures.waterfall_gaps[0] > figures.waterfall_gaps[-1]
+    run = figures.runs[0]
+    assert run.final_err_h_m.shape == run.sim_err_h_m.shape == (10, run.t_unix_s.size)
+    assert figures.final_acf.shape == figures.sim_acf.shape
+    assert not np.array_equal(run.final_sats_used, run.sim_sats_used)  # GLONASS used too
     tool.write_outputs(report, figures, calibrated, report["profile"], tmp_path, 1, None)
     html = (tmp_path / "report.html").read_text()
     assert "Which satellites are tracked" in html and "<td>GLONASS</td>" in html

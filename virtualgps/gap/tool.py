@@ -11,7 +11,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -247,10 +247,12 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     keys = share_runs(runs)
     # (forked before the located gaps' thread starts: see start_workers)
     start_workers(opts.jobs, opts.dask)
-    # The located gaps are judged in a thread while the workers simulate the candidates (not
-    # where the benchmark models workers in this process: the thread would share their time).
+    # The located gaps are judged, and the baseline's figures' arrays made, in a thread while
+    # the workers simulate the candidates (not where the benchmark models workers in this
+    # process: the thread would share their time).
     judging = ThreadPoolExecutor(1) if not modelling() else _Here()
     where_job = judging.submit(dg.where_table, runs, base_sims)
+    figures_job = judging.submit(figure_data, runs, base_sims)
     # Guards as long as the real error's correlation time: held-out real data then share no
     # correlated error with the data a fit saw (the simulations use seeds of their own).
     design = make_design([r.view.name for r in runs], [r.view.t_unix_s for r in runs],
@@ -283,8 +285,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
                               source)[0]
         final_sims = [sim_obs(final_ens[i], r.view) for i, r in enumerate(runs)]
     final_job = judging.submit(dg.where_table, runs, final_sims) if changed else None
-    # (the figures' arrays are computed meanwhile)
-    figures = figure_data(runs, base_sims, final_sims, choice)
+    # (the final figures' arrays are computed meanwhile)
+    figures = with_final(figures_job.result(), runs, final_sims, choice)
     where, alpha = where_job.result()
     say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
     where_final = final_job.result()[0] if changed else where
@@ -484,16 +486,16 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dt * np.arange(max_lag + 1), autocorrelation(grid, max_lag)
 
 
-def figure_data(runs, base_sims, final_sims, choice) -> Any:
-    """Arrays for the report's figures (``base_sims``, ``final_sims``: each run's ensemble as
-    :func:`virtualgps.gap.runs.sim_obs`; ``final_sims`` None where nothing changed)."""
+def figure_data(runs, base_sims) -> Any:
+    """Arrays for the report's figures from the baseline alone (``base_sims``: each run's
+    ensemble as :func:`virtualgps.gap.runs.sim_obs`); :func:`with_final` adds the rest. (Made
+    while the effects are chosen, so that a diagnosis's end waits only for the final part.)"""
     from virtualgps.gap.report import GapFigureData, RunFigureData
 
     figs = []
     for i, r in enumerate(runs):
         v = r.view
         sims = base_sims[i]
-        fin = final_sims[i] if final_sims is not None else None
         real_eh = np.hypot(r.err_real[0, :, 0], r.err_real[0, :, 1])
         eq4 = np.hypot(v.real.lat_deg - sims.lat_deg, v.real.lon_deg - sims.lon_deg)
         figs.append(RunFigureData(
@@ -501,33 +503,44 @@ def figure_data(runs, base_sims, final_sims, choice) -> Any:
             truth_lon_deg=v.truth_lon_deg, real_lat_deg=v.real.lat_deg[0],
             real_lon_deg=v.real.lon_deg[0], sim_lat_deg=sims.lat_deg, sim_lon_deg=sims.lon_deg,
             real_err_h_m=real_eh, sim_err_h_m=_err_h(v, sims),
-            real_sats_used=v.real.sats_used[0], sim_sats_used=sims.sats_used, eq4_deg=eq4,
-            final_lat_deg=None if fin is None else fin.lat_deg,
-            final_lon_deg=None if fin is None else fin.lon_deg,
-            final_err_h_m=None if fin is None else _err_h(v, fin),
-            final_sats_used=None if fin is None else fin.sats_used,
-        ))
+            real_sats_used=v.real.sats_used[0], sim_sats_used=sims.sats_used, eq4_deg=eq4))
     az, el, dis = _sky_points(runs, base_sims)
-    # autocorrelation: the longest run
-    k = int(np.argmax([r.view.t_unix_s.size for r in runs]))
+    k = _acf_run(runs)
     v = runs[k].view
     lags, real_acf = _acf(v, runs[k].err_real[0, :, :2])
-    sim_err = errors_enu(v, base_sims[k])
-    sim_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in sim_err])
-    final_acf = None
-    if final_sims is not None:
-        fe = errors_enu(v, final_sims[k])
-        final_acf = np.stack([_pad(_acf(v, e[:, :2])[1], lags.size) for e in fe])
-    steps = choice.full.steps if choice is not None else []
-    labels = ["baseline"] + [f"+{s['name']}" for s in steps]
-    gaps = [choice.full.baseline if choice is not None else math.nan] + [
-        s["gap_after"] for s in steps]
     return GapFigureData(
         runs=tuple(figs), sky_az_deg=az, sky_el_deg=el, sky_disagreement=dis,
-        acf_lags_s=lags, real_acf=_pad(real_acf, lags.size), sim_acf=sim_acf,
-        waterfall_labels=tuple(labels), waterfall_gaps=tuple(float(g) for g in gaps),
-        final_acf=final_acf,
-    )
+        acf_lags_s=lags, real_acf=_pad(real_acf, lags.size),
+        sim_acf=_acf_seeds(v, base_sims[k], lags.size), waterfall_labels=("baseline",),
+        waterfall_gaps=(math.nan,))
+
+
+def with_final(data: Any, runs, final_sims, choice) -> Any:
+    """:func:`figure_data`'s arrays with the final profile's ensemble (``final_sims``, None
+    where nothing changed) and the choice's waterfall (``choice`` None: none made)."""
+    figs = data.runs
+    if final_sims is not None:
+        figs = tuple(replace(f, final_lat_deg=fin.lat_deg, final_lon_deg=fin.lon_deg,
+                             final_err_h_m=_err_h(r.view, fin), final_sats_used=fin.sats_used)
+                     for f, r, fin in zip(figs, runs, final_sims, strict=True))
+    k = _acf_run(runs)
+    steps = choice.full.steps if choice is not None else []
+    return replace(
+        data, runs=figs, waterfall_labels=("baseline", *(f"+{s['name']}" for s in steps)),
+        waterfall_gaps=(float(choice.full.baseline) if choice is not None else math.nan,
+                        *(float(s["gap_after"]) for s in steps)),
+        final_acf=None if final_sims is None else _acf_seeds(runs[k].view, final_sims[k],
+                                                               data.acf_lags_s.size))
+
+
+def _acf_run(runs) -> int:
+    """The run whose autocorrelation is drawn: the longest."""
+    return int(np.argmax([r.view.t_unix_s.size for r in runs]))
+
+
+def _acf_seeds(view: RunView, sims: Obs, n_lags: int) -> np.ndarray:
+    """(s, n_lags) each seed's error autocorrelation (:func:`_acf`), padded with NaN."""
+    return np.stack([_pad(_acf(view, e[:, :2])[1], n_lags) for e in errors_enu(view, sims)])
 
 
 def _pad(x: np.ndarray, n: int) -> np.ndarray:
