@@ -78,7 +78,8 @@ class WorkerJob:
     link_pattern : ``--link``; members : its receivers; fleet_ids : every receiver's id of the
     fleet; topic : ``--topic``; forward_address : the abstract AF_UNIX address it reads
     forwarded pose messages on (None: it reads ``--poses`` itself: a log or the demo walk);
-    log_level : the parent's logging level
+    log_level : the parent's logging level; duration_s : ``--duration`` (None: until stopped),
+    counted from its receivers' first epoch as one process counts it
     """
 
     index: int
@@ -90,6 +91,7 @@ class WorkerJob:
     topic: str | None
     forward_address: str | None
     log_level: int
+    duration_s: float | None = None
 
 
 class ForwardedPoses(PoseSource):
@@ -271,14 +273,12 @@ def worker_main(job: WorkerJob, conn) -> None:
     stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    duration_s: list[float | None] = [None]
-
     def start_clock(devices, start_unix_s):
         conn.send(("devices", [(str(d.slave_path), str(d.link_path)) for d in devices]))
         msg = conn.recv()
         if msg[0] != "go":
             raise _Stopped
-        _, mono0, wall0, duration_s[0] = msg
+        _, mono0, wall0 = msg
         logging.getLogger().setLevel(job.log_level)
         if source is not None:
             source.accept()  # (the parent connects right after the go)
@@ -309,7 +309,7 @@ def worker_main(job: WorkerJob, conn) -> None:
     daemon.freeze_heap()
     try:
         daemon.run_receivers(fleet.receivers, fleet.provider, fleet.clock, stop, on_epoch,
-                             waiter=fleet.waiter, duration_s=duration_s[0])
+                             waiter=fleet.waiter, duration_s=job.duration_s)
     finally:
         fleet.close()
         stop.close()
@@ -378,7 +378,7 @@ def run_workers(
                 os.environ.setdefault(k, env[k])
             for i, part in enumerate(parts):
                 job = WorkerJob(i, flags, poses_spec, link_pattern, part, fleet_ids, topic,
-                                addresses[i] if addresses else None, level)
+                                addresses[i] if addresses else None, level, duration_s)
                 parent_end, child_end = ctx.Pipe()
                 p = ctx.Process(target=worker_main, args=(job, child_end),
                                 name=f"virtualgps-worker-{i}")
@@ -409,9 +409,8 @@ def run_workers(
         log.info("%d receivers over %d worker processes (%s receivers each)", len(members),
                  len(parts), "-".join(sorted({str(len(p)) for p in parts}, key=int)))
         clock = poseproviders.SimClock(start_unix_s)
-        # (each worker counts --duration from its receivers' first epoch, as one process does)
         for c in conns:
-            c.send(("go", *clock.anchor, duration_s))
+            c.send(("go", *clock.anchor))
         if live_source is not None:
             owner = {m.receiver_id: i for i, part in enumerate(parts) for m in part}
             forwarder = Forwarder(live_source, addresses, owner, fleet_ids)
