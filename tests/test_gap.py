@@ -246,6 +246,38 @@ def test_an_interval_of_grid_points_holds_what_rounds_into_it():
     assert covered({"velocity_aided": True}, {"velocity_aided": [True]}, grid) == {}
 
 
+def test_the_report_says_which_values_round_into_a_fits_interval():
+    """The report's ``fit.spans``, its page and the terminal state the values a fit resolves
+    into its interval's grid points: those the self-check counts as held."""
+    from virtualgps.gap import report as rp
+    from virtualgps.gap import tool
+    from virtualgps.gap.select import Fitted
+    from virtualgps.gap.synthetic import covered
+
+    grid = {"tau_s": [1.5, 2.0, 2.5, 3.0, 16.0], "sigma_m": [1.0, 2.0, 4.0]}
+    fit = Fitted({}, {"tau_s": 2.5, "sigma_m": 4.0},
+                 intervals={"tau_s": [2.0, 3.0], "sigma_m": [4.0, 4.0],
+                            "velocity_aided": [False, True]},
+                 identifiable={"tau_s": True, "sigma_m": True, "velocity_aided": False},
+                 grid=grid).public()
+    assert fit["spans"] == {"tau_s": [1.75, 9.5], "sigma_m": [3.0, 4.0]}  # (4 m: the top)
+    for name, v, held in (("tau_s", 1.76, True), ("tau_s", 9.4, True), ("tau_s", 9.6, False),
+                          ("sigma_m", 3.01, True), ("sigma_m", 2.99, False)):
+        assert covered({name: v}, fit["intervals"], grid)[name] is held, (name, v)
+    effect = {"name": "correlated_error", "accepted": True, "gap_before": 1.0,
+              "gap_after": 0.4, "fit": fit,
+              "params": {"tau_s": 2.5, "sigma_m": 4.0, "velocity_aided": False}}
+    notes = rp._effect_rows({"effects": [effect]})[0]["notes"]
+    assert "tau_s 2–3 on the grid (values 1.75–9.5 round into it)" in notes
+    assert "velocity_aided not identifiable" in notes
+    report = {"headline": [], "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [effect], "located": [], "profile": "usarsim",
+              "gap_baseline": 1.0, "causes": []}
+    assert tool.summary_lines(report)[-1] == (
+        "  effect correlated_error (added): held-out gap 1.000 -> 0.400; tau_s=2.5 (1.75..9.5), "
+        "sigma_m=4 (3..4), velocity_aided=False (not identifiable)")
+
+
 def test_selfcheck_ranks_injected_effects_first(tmp_path):
     from virtualgps.gap import selfcheck
 

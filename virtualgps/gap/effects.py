@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -54,6 +54,19 @@ class Axis:
         if not (self.lo < nxt < (self.hi if self.hi is not None else math.inf)):
             return None
         return nxt
+
+
+def grid_span(grid: Sequence[float], lo: float, hi: float) -> list[float]:
+    """The values a fit resolves into the grid points from ``lo`` to ``hi``: the span widened
+    half-way to the nearest grid values outside it (a value between the interval's end and the
+    next point outside lies nearer the end); an end of the grid stays where it is.
+
+    grid : the axis's grid values (after any extension); lo, hi : the interval's grid values
+    Returns [lo, hi] in the axis's units"""
+    below = [g for g in grid if g < lo]
+    above = [g for g in grid if g > hi]
+    return [float(lo) - ((lo - max(below)) / 2.0 if below else 0.0),
+            float(hi) + ((min(above) - hi) / 2.0 if above else 0.0)]
 
 
 @dataclass(frozen=True)

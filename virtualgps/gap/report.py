@@ -253,10 +253,17 @@ def _effect_rows(report: dict) -> list[dict]:
     for e in report.get("effects", []):
         fit = e.get("fit") or {}
         ident = fit.get("identifiable", {})
-        intervals = fit.get("intervals", {})
+        intervals, spans = fit.get("intervals", {}), fit.get("spans", {})
         notes = []
         for k, ok in ident.items():
-            notes.append(f"{k} {intervals.get(k)}" if ok else f"{k} not identifiable")
+            iv, sp = intervals.get(k), spans.get(k)
+            if not ok:
+                notes.append(f"{k} not identifiable")
+            elif sp:  # (a fit resolves a value only to its grid's points)
+                notes.append(f"{k} {_fmt(iv[0])}–{_fmt(iv[1])} on the grid (values "
+                             f"{_fmt(sp[0])}–{_fmt(sp[1])} round into it)")
+            else:
+                notes.append(f"{k} {_fmt(iv)}")
         notes += [f"{k} {v}" for k, v in fit.get("bounds", {}).items()]
         if e.get("tied_with"):
             notes.append("tied with " + ", ".join(e["tied_with"]))

@@ -372,12 +372,7 @@ def covered(injected: dict, intervals: dict, grids: dict | None = None) -> dict[
         iv = intervals.get(k)
         if isinstance(v, int | float) and not isinstance(v, bool) and isinstance(iv, list) \
                 and len(iv) == 2 and all(isinstance(x, int | float) for x in iv):
-            lo, hi = float(iv[0]), float(iv[1])
-            grid = (grids or {}).get(k) or []
-            below = [g for g in grid if g < lo]
-            above = [g for g in grid if g > hi]
-            lo -= (lo - max(below)) / 2.0 if below else 0.0
-            hi += (min(above) - hi) / 2.0 if above else 0.0
+            lo, hi = fx.grid_span((grids or {}).get(k) or [], float(iv[0]), float(iv[1]))
             out[k] = bool(lo - 1e-9 <= v <= hi + 1e-9)
     return out
 

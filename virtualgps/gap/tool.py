@@ -579,6 +579,16 @@ def _num(v: Any, fmt: str = ".3g") -> str:
     return format(v, fmt) if isinstance(v, int | float) and math.isfinite(v) else "-"
 
 
+def _param(name: str, value: Any, fit: dict) -> str:
+    """``name=value``, with the values that round into its interval's grid points (or "not
+    identifiable") where the fit says."""
+    text = f"{name}={value:g}" if isinstance(value, float) else f"{name}={value}"
+    if fit.get("identifiable", {}).get(name) is False:
+        return text + " (not identifiable)"
+    sp = fit.get("spans", {}).get(name)
+    return text + (f" ({_num(sp[0])}..{_num(sp[1])})" if sp else "")
+
+
 def summary_lines(report: dict, top: int = 5) -> list[str]:
     """A few lines for the terminal: the headline, the causes, the located gaps, the effects."""
     lines = []
@@ -625,8 +635,7 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
                      f"{_num(w['sim_hi'])}")
     for e in report["effects"][:top]:
         mark = "added" if e.get("accepted") else "not added"
-        params = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-                           for k, v in e["params"].items())
+        params = ", ".join(_param(k, v, e.get("fit") or {}) for k, v in e["params"].items())
         tie = f" (tied with {', '.join(e['tied_with'])})" if e.get("tied_with") else ""
         lines.append(f"  effect {e['name']} ({mark}){tie}: held-out gap "
                      f"{e['gap_before']:.3f} -> {e['gap_after']:.3f}"
