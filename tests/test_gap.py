@@ -186,6 +186,31 @@ def test_ingest_survives_what_real_logs_hold(tmp_path):
     assert run.has_gsv and run.has_cn0 and run.has_gsa and run.quality_codes == {1: 1, 7: 1}
 
 
+def test_epochs_before_a_receivers_clock_is_set_are_left_out(shared_data, tmp_path):
+    """mtk-3301.log counts from its RTC's 23:59:46 (dated 050180) until its first fix at
+    08:14:36: those five epochs, hours from every fix, are left out and counted; the two
+    epochs just before the first fix stay (a start-up). A log whose fixes span weeks is one
+    clear error, not a time grid that fills the memory."""
+    from datetime import UTC, datetime
+
+    from virtualgps.exceptions import InputFileError
+
+    ep, skipped, _ = read_real_log(shared_data / "gpsd-mtk" / "mtk-3301.log")
+    assert skipped["epochs_clock_not_set"] == 5
+    assert datetime.fromtimestamp(ep.t_unix_s[0], UTC) == datetime(2008, 8, 23, 8, 14, 33,
+                                                                    591000, tzinfo=UTC)
+    assert list(ep.quality) == [0, 0, 1, 1, 1, 1]
+    fix = "GPGGA,{},5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"
+    weeks = [_sentence(fix.format("120000.000")),
+             _sentence("GPRMC,120000.000,A,5207.0000,N,01138.0000,E,0.0,0.0,010318,,,A"),
+             _sentence(fix.format("120001.000")),
+             _sentence("GPRMC,120001.000,A,5207.0000,N,01138.0000,E,0.0,0.0,150318,,,A")]
+    p = tmp_path / "weeks.nmea"
+    p.write_text("\n".join(weeks) + "\n")
+    with pytest.raises(InputFileError, match="span 14 days"):
+        read_real_log(p)
+
+
 def test_bad_truth_specs_are_clear_errors():
     from virtualgps.exceptions import ConfigError
 

@@ -796,6 +796,18 @@ def test_fixes_are_the_gga_epochs_of_the_one_reader(shared_data):
     i = int(np.flatnonzero(fixes.line == 55)[0])
     assert utc(fixes.t_unix_s[i]) == datetime(2008, 8, 23, 8, 14, 34, 590000, tzinfo=UTC)
     assert fixes.speed_mps[i] == pytest.approx(0.052 / MPS_TO_KNOTS)
+    # the epochs before, whose void RMC print the RTC's 050180, take the fixes' date, not 1980
+    assert utc(epochs.t_unix_s[0]) == datetime(2008, 8, 22, 23, 59, 46, 5000, tzinfo=UTC)
+    assert utc(epochs.t_unix_s[5]) == datetime(2008, 8, 23, 8, 14, 33, 591000, tzinfo=UTC)
+
+
+def test_a_log_dated_by_void_rmc_alone_keeps_their_date():
+    """Where no RMC with status A nor ZDA dates a log, the void RMC's dates are used."""
+    lines = [nmea.format_sentence(b) for b in (
+        "GPGGA,120000.000,,,,,0,00,,,M,,M,,",
+        "GPRMC,120000.000,V,,,,,0.00,0.00,230808,,,N")]
+    ep = nmea.nmea_epochs_from_lines(lines)
+    assert utc(ep.t_unix_s[0]) == datetime(2008, 8, 23, 12, 0, 0, tzinfo=UTC)
 
 
 def test_read_fixes_of_a_magdeburg_phone_log_agrees_with_pynmea2(shared_data):

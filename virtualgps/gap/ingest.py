@@ -41,6 +41,13 @@ OFFSET_MIN_GAIN = 0.9  # apply an offset only if it lowers the median distance b
 # latency of up to ~2 s, a navigation filter's lag of its time constant, several seconds).
 LATENCY_LIKE_S = 5.0
 KNOWN = {"GGA", "RMC", "GSA", "GSV", "VTG", "GLL", "ZDA", "GNS", "GST", "TXT"}
+# Epochs further apart than this split a log into stretches. A stretch without a fix is left
+# out: a receiver whose clock is not set yet prints a placeholder time (mtk-3301.log counts
+# from 23:59:46 until its first fix at 08:14:36), which says nothing of when it ran.
+CLOCK_JUMP_S = 3600.0
+# A run of one session spans at most this: the time grids of its statistics are sized by it (a
+# log of epochs decades apart would fill the memory)
+MAX_RUN_SPAN_S = 7 * 86400.0
 
 
 @dataclass(frozen=True)
@@ -143,17 +150,20 @@ def take_epochs(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
 
 
 def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
-    """Read a real NMEA log as time-ordered epochs, one per time.
+    """Read a real NMEA log as time-ordered epochs, one per time; stretches of epochs without
+    a fix that lie more than :data:`CLOCK_JUMP_S` apart from those with one are left out
+    (``epochs_clock_not_set``).
 
     Returns
     -------
     epochs : NmeaEpochs
-    skipped : {reason: lines}
+    skipped : {reason: lines (epochs for ``duplicate_epoch`` and ``epochs_clock_not_set``)}
     sentences : {type: valid sentences}
 
     Raises
     ------
-    InputFileError : unreadable, empty, or no dated epoch with a fix (one clear line)
+    InputFileError : unreadable, empty, no dated epoch with a fix, or fixes spanning more than
+        :data:`MAX_RUN_SPAN_S` (one clear line)
     """
     try:
         lines = read_text_lines(path)
@@ -176,9 +186,20 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
     if (~first).any():
         skipped["duplicate_epoch"] = int((~first).sum())
     ep = take_epochs(ep, order[first])
-    if not ((ep.quality > 0) & np.isfinite(ep.lat_deg)).any():
+    fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
+    if not fix.any():
         raise InputFileError(path, "no epoch of the log has a fix (GGA quality > 0 with a "
                              "position)")
+    stretch = np.concatenate([[0], np.cumsum(np.diff(ep.t_unix_s) > CLOCK_JUMP_S)])
+    kept = np.isin(stretch, stretch[fix])
+    if not kept.all():
+        skipped["epochs_clock_not_set"] = int((~kept).sum())
+        ep = take_epochs(ep, kept)
+    span_s = float(ep.t_unix_s[-1] - ep.t_unix_s[0])
+    if span_s > MAX_RUN_SPAN_S:
+        raise InputFileError(path, f"its epochs with a fix span {span_s / 86400.0:.0f} days: a "
+                             "run is one session of a receiver; give each session as its own "
+                             "--real log")
     return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences)
 
 

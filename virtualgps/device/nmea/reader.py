@@ -153,13 +153,16 @@ class _Epoch:
     GSV of all talkers add up."""
 
     __slots__ = (
-        "tod", "line", "days", "gga", "rmc", "latlon", "mode", "pdop", "hdop_gsa", "vdop",
-        "gsa_prns", "n_view", "gsv_total", "gsv_seen", "sats",
+        "tod", "line", "days", "days_void", "gga", "rmc", "latlon", "mode", "pdop", "hdop_gsa",
+        "vdop", "gsa_prns", "n_view", "gsv_total", "gsv_seen", "sats",
     )  # fmt: skip
 
     def __init__(self, tod: float, line: int) -> None:
         self.tod, self.line = tod, line
-        self.days: int | None = None  # days since 1970-01-01, from RMC or ZDA
+        self.days: int | None = None  # days since 1970-01-01, from RMC (status A) or ZDA
+        # from an RMC with status V: a receiver whose clock is not set yet prints a placeholder
+        # (MTK's RTC: 050180), so such a date counts only where the log has no other
+        self.days_void: int | None = None
         # (line, lat, lon, alt_msl, geoid_sep, quality, sats_used, hdop)
         self.gga: tuple[int, float, float, float, float, int, int, float] | None = None
         self.rmc: tuple[float, float] | None = None  # (speed m/s, course deg)
@@ -234,7 +237,10 @@ def _read_timed(e: _Epoch, kind: str, f: list[str], no: int) -> None:
             e.rmc = rmc
             if f[1] == "A" and e.latlon is None:
                 e.latlon = latlon
-        if e.days is None:
+        if f[1] != "A":
+            if e.days_void is None:
+                e.days_void = days
+        elif e.days is None:
             e.days = days
     elif kind == "GLL" and len(f) >= 6 and f[5] == "A":
         latlon = (_dm_deg(f[0], f[1], "N", "S"), _dm_deg(f[2], f[3], "E", "W"))
@@ -324,7 +330,9 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
 def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | None) -> np.ndarray:
     """UTC seconds of each epoch: its time of day on its own RMC/ZDA date, else on the date of
     the nearest dated epoch (in file order, the earlier on a tie), choosing among that date and
-    its neighbours the one nearest in time (so a midnight between them is handled).
+    its neighbours the one nearest in time (so a midnight between them is handled). The dates
+    of RMC with status V count only where no RMC with status A or ZDA dates the log: before its
+    first fix a receiver prints its clock's placeholder (mtk-3301.log: 050180 until 2008-08-23).
 
     Returns
     -------
@@ -337,6 +345,9 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
     """
     n_t = len(epochs)
     days = np.array([-1 if e.days is None else e.days for e in epochs], dtype=np.int64)
+    if not (days >= 0).any():
+        days = np.array([-1 if e.days_void is None else e.days_void for e in epochs],
+                        dtype=np.int64)
     tod = np.array([e.tod for e in epochs], dtype=np.float64)
     dated = np.flatnonzero(days >= 0)
     if n_t and dated.size == 0:
