@@ -67,6 +67,39 @@ def test_a_workers_exception_reaches_the_caller():
         jobs.map_jobs(_boom, list(range(6)), jobs=2)
 
 
+def test_pool_workers_end_with_a_killed_parent(tmp_path):
+    """A parent killed outright (e.g. for memory) leaves no pool worker waiting for jobs
+    forever; without it, such workers also held the terminal's pipe of ``virtualgps gap``."""
+    pids = tmp_path / "pids"
+    code = ("import os\n"
+            "from virtualgps.gap import jobs\n"
+            "import test_jobs\n"
+            f"open({str(pids)!r}, 'w').write(' '.join(map(str, set("
+            "jobs.map_jobs(test_jobs._pid, list(range(8)), jobs=2)))))\n"
+            "os.kill(os.getpid(), 9)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parent,
+                          timeout=120)
+    assert proc.returncode == -signal.SIGKILL
+    workers = [int(p) for p in pids.read_text().split()]
+    assert workers
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.1)
+    assert not [p for p in workers if _alive(p)]
+
+
+def _pid(_: int) -> int:
+    return os.getpid()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # (a zombie has ended)
+    except FileNotFoundError:
+        return False
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -14,6 +14,7 @@ import atexit
 import concurrent.futures
 import multiprocessing
 import os
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -86,6 +87,19 @@ def prepare_worker() -> None:
     _LIMITS.append(threadpool_limits(limits=1))
 
 
+def _start_pool_worker(by_main_thread: bool) -> None:
+    """A local pool worker's set-up: :func:`prepare_worker`, and, where the pool was made by
+    the main thread, it ends with this process (:func:`virtualgps.run.processes.
+    die_with_parent`: a pool worker whose parent was killed, e.g. for memory, otherwise waits
+    for jobs forever). The kernel ties that signal to the forking thread, so a pool made by
+    another thread, which may end before the pool does, is left without it."""
+    from virtualgps.run.processes import die_with_parent
+
+    if by_main_thread:
+        die_with_parent()
+    prepare_worker()
+
+
 def _pool(n: int) -> ProcessPoolExecutor:
     pool = _POOLS.get(n)
     if pool is not None and _POOL_VERSION.get(n) != _SHARED_VERSION[0]:
@@ -94,7 +108,9 @@ def _pool(n: int) -> ProcessPoolExecutor:
     if pool is None:
         # fork: workers start with this process's modules imported and its caches filled
         ctx = multiprocessing.get_context("fork") if hasattr(os, "fork") else None
-        pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=prepare_worker)
+        pool = ProcessPoolExecutor(
+            max_workers=n, mp_context=ctx, initializer=_start_pool_worker,
+            initargs=(threading.current_thread() is threading.main_thread(),))
         _POOLS[n] = pool
         _POOL_VERSION[n] = _SHARED_VERSION[0]
     return pool

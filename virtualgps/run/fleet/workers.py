@@ -18,7 +18,6 @@ leaves no orphan holding ptys), and a worker that fails stops the run with its e
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import logging
 import math
@@ -37,6 +36,7 @@ from virtualgps.poses.posesource import PoseSource
 from virtualgps.run import daemon, poseproviders
 from virtualgps.run.fleet.members import Member
 from virtualgps.run.fleet.run import Progress, RunSummary, build_fleet, log_links, progress
+from virtualgps.run.processes import die_with_parent
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,6 @@ STATUS_EVERY_S = 1.0  # how often a worker reports its progress
 STOP_WAIT_S = 30.0  # how long a stopped run waits for its workers' counts before ending them
 _MAX_PENDING_BYTES = 16 << 20  # forwarded poses a worker has yet to take (~100,000 messages)
 _FORWARD_BUF_BYTES = 4 << 20
-_PR_SET_PDEATHSIG = 1  # prctl(2)
 
 
 # A worker per this many receivers at most, by default: each worker pays a tick's fixed cost
@@ -251,13 +250,6 @@ class _Stopped(Exception):
     """The parent stopped the run before the clocks started."""
 
 
-def _die_with_parent() -> None:
-    """Ask the kernel for SIGTERM when the parent dies (Linux ``prctl``), so a killed parent
-    leaves no worker holding its ptys."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
 def worker_main(job: WorkerJob, conn) -> None:
     """A worker process: make its share of the fleet, report its devices, start its clock when
     the parent says, run the live loop until stopped, report the counts.
@@ -269,7 +261,7 @@ def worker_main(job: WorkerJob, conn) -> None:
     # the first says them, the others only their errors until the clocks start.
     logging.basicConfig(level=job.log_level if job.index == 0 else logging.ERROR,
                         format="virtualgps: %(message)s", stream=sys.stderr)
-    _die_with_parent()
+    die_with_parent()
     stop = daemon.StopEvent()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
