@@ -489,7 +489,8 @@ def _acf(view: RunView, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def figure_data(runs, base_sims) -> Any:
     """Arrays for the report's figures from the baseline alone (``base_sims``: each run's
     ensemble as :func:`virtualgps.gap.runs.sim_obs`); :func:`with_final` adds the rest. (Made
-    while the effects are chosen, so that a diagnosis's end waits only for the final part.)"""
+    while the effects are chosen; a diagnosis's end, bounded by the final located gaps' table,
+    then makes only the final part.)"""
     from virtualgps.gap.report import GapFigureData, RunFigureData
 
     figs = []
