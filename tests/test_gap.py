@@ -175,13 +175,13 @@ def test_ingest_survives_what_real_logs_hold(tmp_path):
     ]
     p = tmp_path / "log.nmea"
     p.write_bytes("\r\n".join(lines).encode("latin-1"))
-    ep, skipped, sentences = read_real_log(p)
+    ep, skipped, sentences, dated_by = read_real_log(p)
     assert len(ep) == 2
     assert ep.t_unix_s[1] - ep.t_unix_s[0] == pytest.approx(3.0)  # across midnight
     assert list(ep.quality) == [1, 7]
     assert skipped["bad_checksum"] == 1 and skipped["truncated"] == 1
     assert skipped["not_nmea"] == 1 and skipped["not_used"] == 1
-    assert sentences["GSV"] == 2 and sentences["GGA"] == 3
+    assert sentences["GSV"] == 2 and sentences["GGA"] == 3 and dated_by == "log"
     run = load_run(p, "static:52.1166,11.6333,94")
     assert run.has_gsv and run.has_cn0 and run.has_gsa and run.quality_codes == {1: 1, 7: 1}
 
@@ -195,7 +195,7 @@ def test_epochs_before_a_receivers_clock_is_set_are_left_out(shared_data, tmp_pa
 
     from virtualgps.exceptions import InputFileError
 
-    ep, skipped, _ = read_real_log(shared_data / "gpsd-mtk" / "mtk-3301.log")
+    ep, skipped, *_ = read_real_log(shared_data / "gpsd-mtk" / "mtk-3301.log")
     assert skipped["epochs_clock_not_set"] == 5
     assert datetime.fromtimestamp(ep.t_unix_s[0], UTC) == datetime(2008, 8, 23, 8, 14, 33,
                                                                     591000, tzinfo=UTC)
@@ -209,6 +209,53 @@ def test_epochs_before_a_receivers_clock_is_set_are_left_out(shared_data, tmp_pa
     p.write_text("\n".join(weeks) + "\n")
     with pytest.raises(InputFileError, match="span 14 days"):
         read_real_log(p)
+
+
+def test_a_log_without_dates_is_dated_by_its_truth(tmp_path):
+    """A GGA-only log (no RMC or ZDA) takes the date of its truth's times: on the day that puts
+    its first epoch nearest the truth's first pose (here the day before the truth's date, the
+    log starting just before midnight), rolling past the midnight it crosses. With a static
+    truth nothing can date it: one clear error."""
+    from datetime import UTC, datetime
+
+    from virtualgps.exceptions import InputFileError
+
+    fix = "GPGGA,{},5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"
+    p = tmp_path / "gga.nmea"
+    p.write_text("".join(_sentence(fix.format(t)) + "\n"
+                         for t in ("235958.000", "235959.000", "000000.000", "000001.000")))
+    t0 = datetime(2018, 3, 1, 23, 59, 58, tzinfo=UTC).timestamp()
+    truth = tmp_path / "truth.csv"
+    truth.write_text("t,lat,lon,alt\n" + "".join(
+        f"{t0 + k - 1.0},52.1166,11.6333,94\n" for k in range(6)))
+    run = load_run(p, str(truth))
+    assert run.dated_by == "truth"
+    assert list(run.epochs.t_unix_s - t0) == [0.0, 1.0, 2.0, 3.0]
+    ep, _, _, dated_by = read_real_log(p, near_unix_s=t0 + 86400.0 + 7200.0)
+    assert dated_by == "truth" and ep.t_unix_s[0] == t0 + 86400.0
+    with pytest.raises(InputFileError, match=r"no RMC or ZDA .*\(--truth static cannot\)"):
+        load_run(p, "static")
+
+
+def test_a_log_of_rmc_alone_has_fixes_and_says_what_it_cannot_assess(tmp_path):
+    """Without GGA, an RMC position with status A is a fix (quality 1); a void RMC is none.
+    Altitude and fix quality are then unknown: the vertical scatter and the DGPS share are
+    listed as not assessed, not compared as zeros."""
+    from types import SimpleNamespace
+
+    from virtualgps.gap.diagnose import not_assessed
+
+    rmc = "GPRMC,12000{},{},5207.0000,N,01138.0000,E,0.0,0.0,010318,,,A"
+    p = tmp_path / "rmc.nmea"
+    p.write_text("".join(_sentence(rmc.format(k, "A" if k else "V")) + "\n" for k in range(4)))
+    ep, _, sentences, _ = read_real_log(p)
+    assert list(ep.quality) == [0, 1, 1, 1] and sentences == {"RMC": 4}
+    view = SimpleNamespace(assess={"gsv": True, "cn0": True, "gsa": True, "gga": False},
+                           real=SimpleNamespace(sats_used=np.ones((1, 4)), hdop=np.ones(4)),
+                           reference="truth", speed_mps=np.zeros(4))
+    reasons = {n["metric"]: n["reason"] for n in not_assessed([SimpleNamespace(view=view)])}
+    assert set(reasons) == {"up_p68_m", "dgps_fraction", "lag_s"}
+    assert reasons["dgps_fraction"].startswith("no GGA")
 
 
 def test_bad_truth_specs_are_clear_errors():

@@ -780,6 +780,12 @@ def test_read_fixes_without_date(tmp_path):
         nmea.read_nmea_fixes(p)
     log = nmea.read_nmea_fixes(p, default_date=date(2020, 5, 14))
     assert log.t_unix_s[0] == ts(2020, 5, 14, 12, 0, 0)
+    # the first epoch goes on the default date, the later ones past the midnight they cross
+    p.write_text("".join(nmea.format_sentence(
+        f"GPGGA,{hms},5208.4040,N,01138.5946,E,1,06,1.0,5,M,4,M,,") for hms in
+        ("235959.00", "000000.00", "000001.00")))
+    log = nmea.read_nmea_fixes(p, default_date=date(2020, 5, 14))
+    assert list(log.t_unix_s - ts(2020, 5, 14, 23, 59, 59)) == [0.0, 1.0, 2.0]
 
 
 def test_fixes_are_the_gga_epochs_of_the_one_reader(shared_data):

@@ -232,6 +232,10 @@ def not_assessed(runs: list[Run]) -> list[dict]:
     elif not any(_velocity_varies(r) for r in runs):
         out.append({"metric": "lag_s", "reason": "the truth moves at one velocity: a lag "
                     "cannot be told from a constant bias"})
+    if not any(r.view.assess.get("gga", True) for r in runs):
+        for m in ("up_p68_m", "dgps_fraction"):
+            out.append({"metric": m, "reason": "no GGA in the real logs (RMC or GLL alone: "
+                        "no altitude, no fix quality)"})
     if not any(np.isfinite(r.view.real.hdop).any() for r in runs):
         out.append({"metric": "hdop_median", "reason": "no HDOP in the real logs"})
     return out

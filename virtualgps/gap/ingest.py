@@ -4,7 +4,9 @@ Logs are read the way receivers and loggers write them (:func:`virtualgps.device
 nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
 types, binary noise, bad checksums, truncated lines, a midnight in the log); nothing raises on a
 bad line: every skipped line is counted by reason and reported. A fix is any GGA quality above
-0 with a position (phones write 7 on every fix). Epochs are put in time order, one per time.
+0 with a position (phones write 7 on every fix); in a log without GGA, an RMC or GLL position
+with status A. Epochs are put in time order, one per time. A log that no RMC or ZDA dates takes
+the date of its truth's times.
 
 The truth is a pose log of DESIGN section 4 (any format, geodetic or scene ENU), ``static``
 (stood still at an unknown point: the run's median fix) or ``static:LAT,LON,ALT_HAE``. Where the
@@ -17,6 +19,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field, fields, replace
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +27,7 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.device.nmea import (
     NmeaEpochs,
+    UndatedLogError,
     nmea_epochs_from_lines,
     read_text_lines,
 )
@@ -48,6 +52,8 @@ CLOCK_JUMP_S = 3600.0
 # A run of one session spans at most this: the time grids of its statistics are sized by it (a
 # log of epochs decades apart would fill the memory)
 MAX_RUN_SPAN_S = 7 * 86400.0
+# What the report says of a log without dates (GGA alone) that its truth's times dated
+DATED_BY_TRUTH = "no RMC or ZDA dates its epochs: dated by its truth's times"
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,7 @@ class RealRun:
     quality_codes : {GGA quality: epochs}
     has_gsv : some GSV lists a GPS PRN (1-32) with an elevation; has_cn0 : some GPS SNR;
     has_gsa : some GSA lists PRNs
+    dated_by : "log" (its RMC/ZDA) or "truth" (a log without dates, dated by its truth's times)
     """
 
     name: str
@@ -93,6 +100,7 @@ class RealRun:
     has_gsv: bool = False
     has_cn0: bool = False
     has_gsa: bool = False
+    dated_by: str = "log"
 
 
 def parse_truth(spec: str) -> Truth:
@@ -149,21 +157,27 @@ def take_epochs(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
     return replace(epochs, **cut)
 
 
-def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
+def read_real_log(path: str | Path, near_unix_s: float | None = None
+                  ) -> tuple[NmeaEpochs, dict, dict, str]:
     """Read a real NMEA log as time-ordered epochs, one per time; stretches of epochs without
     a fix that lie more than :data:`CLOCK_JUMP_S` apart from those with one are left out
     (``epochs_clock_not_set``).
+
+    near_unix_s : UTC seconds near the log's start (its truth's first pose), which dates a log
+        that no RMC or ZDA dates (a GGA-only log): its first epoch goes on the day that puts it
+        nearest this time. None: such a log is an error.
 
     Returns
     -------
     epochs : NmeaEpochs
     skipped : {reason: lines (epochs for ``duplicate_epoch`` and ``epochs_clock_not_set``)}
     sentences : {type: valid sentences}
+    dated_by : ``"log"`` (its RMC/ZDA) or ``"truth"`` (``near_unix_s``)
 
     Raises
     ------
-    InputFileError : unreadable, empty, no dated epoch with a fix, or fixes spanning more than
-        :data:`MAX_RUN_SPAN_S` (one clear line)
+    InputFileError : unreadable, empty, undated without ``near_unix_s``, no epoch with a fix,
+        or fixes spanning more than :data:`MAX_RUN_SPAN_S` (one clear line)
     """
     try:
         lines = read_text_lines(path)
@@ -172,7 +186,18 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
     if not any(ln.strip() for ln in lines):
         raise InputFileError(path, "the log is empty")
     tally: Counter = Counter()
-    ep = nmea_epochs_from_lines(lines, path, tally=tally)
+    dated_by = "log"
+    try:
+        ep = nmea_epochs_from_lines(lines, path, tally=tally)
+    except UndatedLogError:
+        if near_unix_s is None:
+            raise InputFileError(path, "no RMC or ZDA sentence gives the date of its epochs; "
+                                 "give a log with RMC or ZDA lines, or a truth pose log whose "
+                                 "times date it (--truth static cannot)") from None
+        tally.clear()
+        ep = _dated_near(nmea_epochs_from_lines(
+            lines, path, datetime.fromtimestamp(near_unix_s, UTC).date(), tally), near_unix_s)
+        dated_by = "truth"
     sentences, skipped = _census(tally)
     if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
         raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes")
@@ -186,6 +211,9 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
     if (~first).any():
         skipped["duplicate_epoch"] = int((~first).sum())
     ep = take_epochs(ep, order[first])
+    if not sentences["GGA"]:
+        # RMC or GLL alone: a position with status A is a fix (of quality unknown: 1)
+        ep = replace(ep, quality=np.where(np.isfinite(ep.lat_deg), 1, 0).astype(np.int8))
     fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
     if not fix.any():
         raise InputFileError(path, "no epoch of the log has a fix (GGA quality > 0 with a "
@@ -200,7 +228,15 @@ def read_real_log(path: str | Path) -> tuple[NmeaEpochs, dict, dict]:
         raise InputFileError(path, f"its epochs with a fix span {span_s / 86400.0:.0f} days: a "
                              "run is one session of a receiver; give each session as its own "
                              "--real log")
-    return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences)
+    return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences), dated_by
+
+
+def _dated_near(ep: NmeaEpochs, near_unix_s: float) -> NmeaEpochs:
+    """Epochs dated on one day, moved by whole days so that the first lies nearest
+    ``near_unix_s`` (a log that starts just before the truth's midnight)."""
+    first = ep.t_unix_s[np.isfinite(ep.t_unix_s)]
+    days = round((near_unix_s - first[0]) / 86400.0) if first.size else 0
+    return replace(ep, t_unix_s=ep.t_unix_s + 86400.0 * days)
 
 
 def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) -> RealRun:
@@ -217,12 +253,12 @@ def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) ->
     RealRun
     """
     path = Path(real_path)
-    ep, skipped, sentences = read_real_log(path)
     truth = parse_truth(truth_spec)
+    ep, skipped, sentences, dated_by = read_real_log(path, _dating_time_s(truth))
     gps = (ep.prn >= 1) & (ep.prn <= 32)
     run = RealRun(
         name=name or path.stem, path=path, epochs=ep, truth=truth,
-        skipped=skipped, sentences=sentences,
+        skipped=skipped, sentences=sentences, dated_by=dated_by,
         quality_codes={int(q): int(c) for q, c in zip(*np.unique(ep.quality, return_counts=True),
                                                        strict=True)},
         has_gsv=bool((ep.in_view[:, gps] & np.isfinite(ep.el_deg[:, gps])).any()),
@@ -238,6 +274,18 @@ def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) ->
     offset, info = estimate_time_offset_s(ep.t_unix_s[fixed], ep.lat_deg[fixed],
                                           ep.lon_deg[fixed], truth.track)
     return replace(run, time_offset_s=offset, offset_info=info)
+
+
+# The first GPS week: a truth's times before it are not dates (a pose log timed from 0)
+GPS_EPOCH_UNIX_S = 315964800.0
+
+
+def _dating_time_s(truth: Truth) -> float | None:
+    """The truth's first time where it can date a log (a pose log on the UTC clock), else None."""
+    if truth.kind != "track" or not len(truth.track):
+        return None
+    t0 = float(truth.track.t_unix_s[0])
+    return t0 if t0 >= GPS_EPOCH_UNIX_S else None
 
 
 def _horizontal_m(lat_deg, lon_deg, ref_lat_deg, ref_lon_deg) -> np.ndarray:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps.gap import causes as cz
+from virtualgps.gap.ingest import DATED_BY_TRUTH
 
 
 @dataclass(frozen=True)
@@ -313,6 +314,8 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
     warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "
                         f"{html.escape(r['sky_warning'])}</p>"
                         for r in runs if isinstance(r, dict) and r.get("sky_warning"))
+    warnings += "".join(f"<p>Note: {html.escape(r['name'])}: {DATED_BY_TRUTH}.</p>"
+                        for r in runs if isinstance(r, dict) and r.get("dated_by") == "truth")
     body = [
         f"<h1>virtualgps gap: {html.escape(str(report.get('profile', '')))}</h1>",
         f"<p>Runs: {html.escape(names)}.</p>", warnings,

@@ -188,13 +188,14 @@ def prepare_runs(
             vel_enu_mps=setup.vel_enu_mps, near_building=(geom.crosses_building & above).any(1),
             prn=geom.prn, az_deg=geom.az_deg.astype(float), el_deg=el, sat_ok=sat_ok,
             assess={"gsv": bool(run.has_gsv), "cn0": bool(run.has_cn0),
-                    "gsa": bool(run.has_gsa)},
+                    "gsa": bool(run.has_gsa), "gga": bool(run.sentences.get("GGA"))},
             real=real, quantum_min=position_quantum_min(real.lat_deg[0], real.lon_deg[0]),
             hdop_step=printed_step(np.where(ep.quality > 0, ep.hdop, np.nan)),
             alt_step_m=printed_step(np.where(ep.quality > 0, ep.alt_msl_m, np.nan)),
         )
         out.append(Run(setup, view, errors_enu(view, real), {
             "skipped": dict(run.skipped), "sentences": dict(run.sentences),
+            "dated_by": run.dated_by,
             "time_offset_s": run.time_offset_s, "offset": dict(run.offset_info),
             "simulated_in": "scene" if setup.scene_path else "open sky",
             "silent_prns": [int(p) for p in geom.prn[silent]],

@@ -166,7 +166,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
     base_off = next((c for c in base.get("causes", []) if c["name"] == "truth_offset"), {})
     if progress:
         progress(f"self-check real base gsdc: the untouched log adds {base_added or 'nothing'}")
-    ep, _, _ = read_real_log(real)
+    ep, *_ = read_real_log(real)
     fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
     t, lat, lon = ep.t_unix_s[fix], ep.lat_deg[fix], ep.lon_deg[fix]
     speed = np.nan_to_num(ep.speed_mps[fix])

@@ -25,6 +25,7 @@ from virtualgps.gap import select as sel
 from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
+from virtualgps.gap.ingest import DATED_BY_TRUTH
 from virtualgps.gap.jobs import modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
@@ -612,6 +613,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
     lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
     lines += [f"  warning: {r['name']}: {r['sky_warning']}" for r in report["runs"]
               if r.get("sky_warning")]
+    lines += [f"  note: {r['name']}: {DATED_BY_TRUTH}" for r in report["runs"]
+              if r.get("dated_by") == "truth"]
     for c in report.get("causes", []):
         if c["name"] == "truth_offset" and c["applied"]:
             lines.append(f"  cause: the truth of {c['run']} sits {c['size_m']:.1f} m off "

@@ -518,7 +518,7 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             out["hdop_median"] = row_quantile(np.where(f, o.hdop[:, epochs], np.nan), 0.5)
         if wanted("fix_fraction"):
             out["fix_fraction"] = f.mean(axis=1)
-        if wanted("dgps_fraction"):
+        if wanted("dgps_fraction") and view.assess.get("gga", True):
             out["dgps_fraction"] = (o.quality[:, epochs] == 2).mean(axis=1)
         if wanted("ttff_s") and g.starts:
             first = np.argmax(f, axis=1)

@@ -12,6 +12,7 @@ The names below are the API (``from virtualgps import nmea; nmea.render_batch(..
 from virtualgps.device.nmea.reader import (
     NmeaEpochs,
     NmeaFixLog,
+    UndatedLogError,
     nmea_epochs_from_lines,
     nmea_fixes_from_lines,
     read_nmea_epochs,
@@ -48,6 +49,7 @@ __all__ = [
     "NmeaEpochs",
     "NmeaFixLog",
     "NmeaFormat",
+    "UndatedLogError",
     "epoch_sentences",
     "format_sentence",
     "nmea_checksum",

@@ -203,6 +203,11 @@ def _opt_float(value: str) -> float:
     return float(value) if value else math.nan
 
 
+class UndatedLogError(InputFileError):
+    """A log whose epochs no RMC or ZDA dates, read without a default date (a caller that knows
+    the date another way, e.g. from a truth log, reads it again with one)."""
+
+
 def _days(y: int, m: int, d: int) -> int:
     return date(y, m, d).toordinal() - UNIX_EPOCH_ORDINAL
 
@@ -338,6 +343,9 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
     -------
     t_unix_s : (len(epochs),) float64
 
+    Without any date, the first epoch is dated ``default_date`` and the later ones roll past
+    midnight.
+
     Raises
     ------
     InputFileError
@@ -352,12 +360,15 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
     dated = np.flatnonzero(days >= 0)
     if n_t and dated.size == 0:
         if default_date is None:
-            raise InputFileError(
+            raise UndatedLogError(
                 source,
                 "no RMC or ZDA sentence gives the date of the epochs; expected RMC (ddmmyy) "
-                "or ZDA lines, or pass a default date",
+                "or ZDA lines",
             )
+        # the first epoch on the default date, the later ones past each midnight they cross
+        # (the time of day falling back by more than half a day, in file order)
         days[:] = _days(default_date.year, default_date.month, default_date.day)
+        days += np.concatenate([[0], np.cumsum(np.diff(tod) < -43200.0)]).astype(np.int64)
     elif n_t:
         idx = np.arange(n_t)
         pos = np.clip(np.searchsorted(dated, idx), 1, max(dated.size - 1, 1))
@@ -391,7 +402,8 @@ def nmea_epochs_from_lines(
     ----------
     lines : the text lines of the log
     source : name of the log, for error messages
-    default_date : UTC date used when no RMC or ZDA gives one
+    default_date : UTC date of the first epoch when no RMC or ZDA gives one (later epochs roll
+        past midnight)
     tally : where given, every line is counted into it (see :func:`_read_epochs`)
 
     Returns
@@ -490,7 +502,7 @@ def nmea_fixes_from_lines(
     ----------
     lines : the text lines
     source : name of the file, for error messages
-    default_date : UTC date used when the log has no RMC or ZDA
+    default_date : UTC date of the first epoch when the log has no RMC or ZDA
 
     Returns
     -------
@@ -554,7 +566,7 @@ def read_nmea_fixes(path: str | Path, default_date: date | None = None) -> NmeaF
     Parameters
     ----------
     path : the log; any prefix before ``$`` on a line is ignored
-    default_date : UTC date used when the log has no RMC or ZDA
+    default_date : UTC date of the first epoch when the log has no RMC or ZDA
 
     Returns
     -------
@@ -569,7 +581,7 @@ def read_nmea_epochs(path: str | Path, default_date: date | None = None) -> Nmea
     Parameters
     ----------
     path : the log file; text before ``$`` on a line and undecodable bytes are tolerated
-    default_date : UTC date used when the log has no RMC or ZDA
+    default_date : UTC date of the first epoch when the log has no RMC or ZDA
 
     Returns
     -------
