@@ -258,6 +258,29 @@ def test_a_log_of_rmc_alone_has_fixes_and_says_what_it_cannot_assess(tmp_path):
     assert reasons["dgps_fraction"].startswith("no GGA")
 
 
+def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
+    """A log whose clock runs 30 s behind its truth's is matched at ingest (estimate_time_offset_s)
+    and judged after; the terminal and the page say that it was, not only the lag that
+    remains (GSDC's SPAN truth moved 30 s: -29.99 s found)."""
+    from virtualgps.gap import report as rp
+    from virtualgps.gap import tool
+
+    clock = {"name": "time_offset", "kind": "clock", "run": "drive", "lag_s": -0.015,
+             "blocks": 9, "interval_s": [-0.03, 0.1], "ingest_best_s": -29.99,
+             "applied_s": -29.99, "what": "the fixes lag the truth by this much"}
+    report = {"headline": [], "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [], "located": [], "profile": "holux-m1000",
+              "gap_baseline": 1.0, "causes": [clock]}
+    said = "the clock of drive's log runs 29.99 s behind its truth's: taken out before judging"
+    assert f"  cause: {said}" in tool.summary_lines(report)
+    assert said in rp._cause_rows(report)[0]["what"]
+    report["causes"] = [dict(clock, applied_s=0.0, lag_s=1.2)]
+    lines = tool.summary_lines(report)
+    assert not any("the clock of" in ln for ln in lines)
+    assert "  cause?: the fixes lag the truth of drive by 1.20 s (a clock offset or an output " \
+        "latency)" in lines
+
+
 def test_bad_truth_specs_are_clear_errors():
     from virtualgps.exceptions import ConfigError
 
@@ -288,6 +311,35 @@ def test_time_offset_recovered_on_a_moving_track():
                                            np.interp(t - lag, t, lon) + noise[1], truth)
         assert off == 0.0 and not info["applied"]
         assert info["best_s"] == pytest.approx(lag, abs=0.2)
+
+
+def test_a_clock_offset_beyond_the_first_window_is_found_or_said():
+    """The search widens while its best lies at the grid's end: 95 s is found (the first
+    window, +-30 s, ended at -29.99 s before and took that out); 900 s, beyond the widest
+    window, is not taken out, and the report says why."""
+    from virtualgps.gap.ingest import OFFSET_WINDOWS_S, ingest_notes
+
+    rng = np.random.default_rng(6)
+    n = 2400
+    t = 1.6e9 + np.arange(float(n))
+    heading = 0.6 * np.sin(t / 60.0)  # (a wavy road: no place passed twice)
+    lat = 37.4 + np.cumsum(10 * np.cos(heading)) / 111e3
+    lon = -122.1 + np.cumsum(10 * np.sin(heading)) / (111e3 * np.cos(np.radians(37.4)))
+    truth = PoseTrack(t, "geodetic", np.stack([lat, lon, np.zeros_like(t)], 1),
+                      np.full((n, 3), np.nan))
+    noise = rng.normal(0, 3.0 / 111e3, (2, n))
+    for shift, found in ((95.0, True), (900.0, False)):
+        real = slice(1000, 1900)  # the log: 15 minutes inside the truth's 40
+        off, info = estimate_time_offset_s(
+            t[real], np.interp(t[real] - shift, t, lat) + noise[0, real],
+            np.interp(t[real] - shift, t, lon) + noise[1, real], truth)
+        assert info["applied"] is found and info["at_edge"] is not found
+        if found:
+            assert off == pytest.approx(shift, abs=0.2)
+        else:
+            assert off == 0.0 and info["searched_s"][1] == OFFSET_WINDOWS_S[-1]
+            note = ingest_notes({"offset": info})[0]
+            assert "the end of the 600 s searched: no offset was taken out" in note
 
 
 def test_real_logs_load(shared_data):
@@ -348,6 +400,12 @@ def test_the_report_says_which_values_round_into_a_fits_interval():
     assert tool.summary_lines(report)[-1] == (
         "  effect correlated_error (added): held-out gap 1.000 -> 0.400; tau_s=2.5 (1.75..9.5), "
         "sigma_m=4 (3..4), velocity_aided=False (not identifiable)")
+    # a fit still at its grid's end after extending it is a bound (a 0.2 Hz phone log's
+    # velocity-aided filter: tau_s at 32 s, the top)
+    effect["fit"] = dict(fit, bounds={"tau_s": ">= 16"}, grid_edge={"tau_s": "upper"})
+    effect["params"] = {"tau_s": 16.0, "sigma_m": 4.0}
+    assert tool.summary_lines(report)[-1].endswith(
+        "tau_s=16 (>= 16: at the grid's end, a bound), sigma_m=4 (3..4)")
 
 
 def test_selfcheck_ranks_injected_effects_first(tmp_path):
@@ -471,6 +529,19 @@ def test_gap_cli_errors_are_one_line(tmp_path):
         assert r.returncode == 2, (args, r.stderr)
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("virtualgps: error:"), r.stderr
+    # a truth logged in local time (two hours on): both spans, in UTC, in the one line
+    fix = "GPGGA,{0},5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"
+    rmc = "GPRMC,{0},A,5207.0000,N,01138.0000,E,0.0,0.0,010318,,,A"
+    log = tmp_path / "log.nmea"
+    log.write_text("".join(_sentence(f.format(f"12000{k}.000")) + "\n"
+                           for k in range(6) for f in (fix, rmc)))
+    truth = tmp_path / "truth.csv"
+    truth.write_text("t,lat,lon,alt\n" + "".join(f"{1519912800.0 + k},52.1166,11.6333,94\n"
+                                                 for k in range(6)))
+    r = _gap_cli(["--real", str(log), "--truth", str(truth), "--scene", "none", "--out",
+                  str(tmp_path / "o")])
+    assert r.returncode == 2 and "(log 2018-03-01 12:00:00 to 12:00:05 UTC, truth 2018-03-01 " \
+        "14:00:00 to 14:00:05 UTC)" in r.stderr, r.stderr
 
 
 def test_a_satellite_never_tracked_over_a_long_pass_is_silent_not_blocked():

@@ -210,6 +210,17 @@ def shift_truth(run: Run, east_m: float, north_m: float) -> Run:
     return replace(run, err_real=errors_enu(moved, v.real))
 
 
+def clock_note(cause: dict) -> str | None:
+    """What a ``time_offset`` cause says of a log-vs-truth clock offset found and taken out at
+    ingest (beyond :data:`~virtualgps.gap.ingest.LATENCY_LIKE_S`), None where none was."""
+    off = cause.get("applied_s") or 0.0
+    if not off:
+        return None
+    side = "behind" if off < 0 else "ahead of"
+    return (f"the clock of {cause['run']}'s log runs {abs(off):.2f} s {side} its truth's: "
+            "taken out before judging")
+
+
 def time_offset(run: Run, corr_time_s: float) -> dict | None:
     """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
     +-30 s), and the least-squares lag of the fixes behind the truth per block with a 95 %

@@ -39,7 +39,11 @@ from virtualgps.receiver.definition import Georef
 
 TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs between unknown
 MOVING_PATH_M = 30.0  # a truth whose path is longer than this "moves": its clock offset is sought
-OFFSET_MAX_S = 30.0
+# Clock offsets searched (seconds either way): the first window, widened while the best lies at
+# its end. GPS time against UTC is 18 s (since 2017); a truth logged with a clock that drifted
+# or was set by hand may be minutes off. Hours (a time zone) are no offset of a clock: the log
+# and the truth then do not overlap, which is its own clear error.
+OFFSET_WINDOWS_S = (30.0, 120.0, 600.0)
 OFFSET_MIN_GAIN = 0.9  # apply an offset only if it lowers the median distance by 10 % or more
 # Offsets up to this are reported, not applied: a receiver's own lag looks the same (an output
 # latency of up to ~2 s, a navigation filter's lag of its time constant, several seconds).
@@ -52,8 +56,6 @@ CLOCK_JUMP_S = 3600.0
 # A run of one session spans at most this: the time grids of its statistics are sized by it (a
 # log of epochs decades apart would fill the memory)
 MAX_RUN_SPAN_S = 7 * 86400.0
-# What the report says of a log without dates (GGA alone) that its truth's times dated
-DATED_BY_TRUTH = "no RMC or ZDA dates its epochs: dated by its truth's times"
 
 
 @dataclass(frozen=True)
@@ -231,6 +233,20 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None
     return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences), dated_by
 
 
+def ingest_notes(run: dict) -> list[str]:
+    """What the report says of how a run was read, for people: a log that its truth dated, a
+    clock offset the search could not place. ``run``: the report's ``runs[]`` entry."""
+    notes = []
+    if run.get("dated_by") == "truth":
+        notes.append("no RMC or ZDA dates its epochs: dated by its truth's times")
+    off = run.get("offset") or {}
+    if off.get("at_edge"):
+        notes.append(f"its fixes match the truth best at a clock offset of {off['best_s']:+.0f} "
+                     f"s, the end of the {off['searched_s'][1]:.0f} s searched: no offset was "
+                     "taken out; check that the truth is this log's, and both clocks")
+    return notes
+
+
 def _dated_near(ep: NmeaEpochs, near_unix_s: float) -> NmeaEpochs:
     """Epochs dated on one day, moved by whole days so that the first lies nearest
     ``near_unix_s`` (a log that starts just before the truth's midnight)."""
@@ -297,38 +313,60 @@ def _horizontal_m(lat_deg, lon_deg, ref_lat_deg, ref_lon_deg) -> np.ndarray:
 
 
 def _median_dist(offset_s: float, t, lat, lon, track: pose.PoseTrack) -> float:
+    return _median_dist_n(offset_s, t, lat, lon, track)[0]
+
+
+def _median_dist_n(offset_s: float, t, lat, lon, track: pose.PoseTrack) -> tuple[float, int]:
+    """Median horizontal distance, metres, of the fixes to the truth at ``t - offset_s``, and
+    the number of fixes the truth covers there (inf under 10)."""
     p, _, ok = pose.interpolate(track, t - offset_s, TRUTH_MAX_GAP_S)
-    if ok.sum() < 10:
-        return math.inf
-    return float(np.median(_horizontal_m(lat[ok], lon[ok], p[ok, 0], p[ok, 1])))
+    n = int(ok.sum())
+    if n < 10:
+        return math.inf, n
+    return float(np.median(_horizontal_m(lat[ok], lon[ok], p[ok, 0], p[ok, 1]))), n
 
 
 def estimate_time_offset_s(
     real_t_unix_s: np.ndarray, real_lat_deg: np.ndarray, real_lon_deg: np.ndarray,
-    truth: pose.PoseTrack, max_offset_s: float = OFFSET_MAX_S,
+    truth: pose.PoseTrack, windows_s: tuple[float, ...] = OFFSET_WINDOWS_S,
 ) -> tuple[float, dict]:
     """A constant clock offset between a real log and a moving geodetic truth.
 
     The offset minimises the median horizontal distance between the real fixes and the truth
-    at ``t - offset``: a 1 s grid over +-max_offset_s, then golden-section refinement to 0.02 s
-    around the best. It is sought only where the truth moves (a path over MOVING_PATH_M), and
-    applied only when it lowers the distance by 10 % or more against no offset and exceeds
-    LATENCY_LIKE_S: a smaller lag cannot be told from the receiver's own output latency (the
-    ``latency`` effect, which the diagnosis then measures); it is reported either way.
+    at ``t - offset``: a 1 s grid over +-``windows_s[0]``, widened to the next window while the
+    best lies at the grid's end, then golden-section refinement to 0.02 s around the best.
+    Offsets where the truth covers under half the fixes it covers at its best overlap are not
+    candidates (a few fixes that happen to lie on the track). It is sought only where the
+    truth moves (a path over MOVING_PATH_M), and applied only when it lowers the distance by
+    10 % or more against no offset, exceeds LATENCY_LIKE_S (a smaller lag cannot be told from
+    the receiver's own output latency, the ``latency`` effect, which the diagnosis then
+    measures) and lies inside the widest window (``at_edge``: the clocks differ by more, or
+    the truth is not this log's); it is reported either way.
 
     Returns
     -------
     offset_s : float, real time = truth time + offset_s
-    info : {"method", "searched_s", "median_m_at_0", "median_m", "applied"}
+    info : {"method", "searched_s", "median_m_at_0", "median_m", "best_s", "at_edge",
+        "applied"}
     """
     xyz = truth.xyz
     path_m = float(np.sum(_horizontal_m(xyz[1:, 0], xyz[1:, 1], xyz[:-1, 0], xyz[:-1, 1])))
     if path_m < MOVING_PATH_M or real_t_unix_s.size < 30:
         return 0.0, {"method": "none", "reason": f"the truth does not move ({path_m:.0f} m)"}
     args = (real_t_unix_s, real_lat_deg, real_lon_deg, truth)
-    grid = np.arange(-max_offset_s, max_offset_s + 0.5, 1.0)
-    cost = np.array([_median_dist(o, *args) for o in grid])
-    k = int(np.argmin(cost))
+    tried: dict[float, tuple[float, int]] = {}
+    for width in windows_s:
+        grid = np.arange(-width, width + 0.5, 1.0)
+        for o in grid:
+            if float(o) not in tried:
+                tried[float(o)] = _median_dist_n(float(o), *args)
+        cost = np.array([tried[float(o)][0] for o in grid])
+        n = np.array([tried[float(o)][1] for o in grid])
+        cost[n < 0.5 * n.max()] = math.inf
+        k = int(np.argmin(cost))
+        at_edge = bool(abs(grid[k]) >= width)
+        if not at_edge:
+            break
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
     g = (math.sqrt(5.0) - 1.0) / 2.0
     c, d = b - g * (b - a), a + g * (b - a)
@@ -346,10 +384,12 @@ def estimate_time_offset_s(
     at0, at_best = _median_dist(0.0, *args), _median_dist(best, *args)
     # A lag of a second or two is what a receiver's own output latency looks like (the
     # ``latency`` effect): it is reported, not removed; a larger one is a clock offset.
-    applied = bool(at_best <= OFFSET_MIN_GAIN * at0 and abs(best) > LATENCY_LIKE_S)
+    applied = bool(at_best <= OFFSET_MIN_GAIN * at0 and abs(best) > LATENCY_LIKE_S
+                   and not at_edge)
     info = {"method": "median distance to the truth, grid then golden section",
-            "searched_s": [-max_offset_s, max_offset_s], "median_m_at_0": at0,
-            "median_m": at_best, "best_s": float(best), "applied": applied}
+            "searched_s": [-width, width], "median_m_at_0": at0,
+            "median_m": at_best, "best_s": float(best), "at_edge": at_edge,
+            "applied": applied}
     return (best if applied else 0.0), info
 
 

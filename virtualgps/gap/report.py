@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps.gap import causes as cz
-from virtualgps.gap.ingest import DATED_BY_TRUTH
+from virtualgps.gap.ingest import ingest_notes
 
 
 @dataclass(frozen=True)
@@ -220,7 +220,8 @@ def _cause_rows(report: dict) -> list[dict]:
             lo, hi = c["interval_s"]
             what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"
                     + (f" (95 %: {lo:.2f} to {hi:.2f} s)" if math.isfinite(lo) else "")
-                    + f". {c['what']}")
+                    + f". {c['what']}"
+                    + (f". Before that, {cz.clock_note(c)}" if cz.clock_note(c) else ""))
         elif c["name"] == "constellations":
             what = f"{c['run']}: {c['what']}"
         else:
@@ -314,8 +315,8 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
     warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "
                         f"{html.escape(r['sky_warning'])}</p>"
                         for r in runs if isinstance(r, dict) and r.get("sky_warning"))
-    warnings += "".join(f"<p>Note: {html.escape(r['name'])}: {DATED_BY_TRUTH}.</p>"
-                        for r in runs if isinstance(r, dict) and r.get("dated_by") == "truth")
+    warnings += "".join(f"<p><b>Note:</b> {html.escape(r['name'])}: {html.escape(n)}.</p>"
+                        for r in runs if isinstance(r, dict) for n in ingest_notes(r))
     body = [
         f"<h1>virtualgps gap: {html.escape(str(report.get('profile', '')))}</h1>",
         f"<p>Runs: {html.escape(names)}.</p>", warnings,

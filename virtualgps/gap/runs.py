@@ -6,6 +6,7 @@ ensemble read the same way (positions, HDOP and altitude rounded to the digits t
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -133,9 +134,10 @@ def prepare_runs(
         if not valid.any():
             from virtualgps.exceptions import InputFileError
 
+            truth_t = run.truth.track.t_unix_s if run.truth.track is not None else t[:0]
             raise InputFileError(run.path, "no epoch of this log matches its truth in time "
-                                 f"(log {t[0]:.0f}-{t[-1]:.0f} UTC s); check the truth file, "
-                                 "its time zone and its clock")
+                                 f"(log {_utc_span(t)}, truth {_utc_span(truth_t)}); check the "
+                                 "truth file, its time zone and its clock")
         where_scene = scene_path
         if georef is not None:
             enu = geodesy.ecef_to_enu(
@@ -201,6 +203,15 @@ def prepare_runs(
             "silent_prns": [int(p) for p in geom.prn[silent]],
         }))
     return out
+
+
+def _utc_span(t_unix_s: np.ndarray) -> str:
+    """``2020-05-14 22:10:46 to 22:39:44 UTC`` (the end's date where it differs)."""
+    if not t_unix_s.size:
+        return "empty"
+    a, b = (time.gmtime(float(x)) for x in (t_unix_s[0], t_unix_s[-1]))
+    end = time.strftime("%H:%M:%S" if a[:3] == b[:3] else "%Y-%m-%d %H:%M:%S", b)
+    return f"{time.strftime('%Y-%m-%d %H:%M:%S', a)} to {end} UTC"
 
 
 # A satellite the real receiver never tracks in a whole run, while at the same epochs it tracks

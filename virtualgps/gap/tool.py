@@ -25,7 +25,7 @@ from virtualgps.gap import select as sel
 from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
-from virtualgps.gap.ingest import DATED_BY_TRUTH
+from virtualgps.gap.ingest import ingest_notes
 from virtualgps.gap.jobs import modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.runs import prepare_runs, sim_obs
@@ -583,10 +583,12 @@ def _num(v: Any, fmt: str = ".3g") -> str:
 
 def _param(name: str, value: Any, fit: dict) -> str:
     """``name=value``, with the values that round into its interval's grid points (or "not
-    identifiable") where the fit says."""
+    identifiable", or the bound of a fit left at its grid's end) where the fit says."""
     text = f"{name}={value:g}" if isinstance(value, float) else f"{name}={value}"
     if fit.get("identifiable", {}).get(name) is False:
         return text + " (not identifiable)"
+    if name in fit.get("bounds", {}):
+        return text + f" ({fit['bounds'][name]}: at the grid's end, a bound)"
     sp = fit.get("spans", {}).get(name)
     return text + (f" ({_num(sp[0])}..{_num(sp[1])})" if sp else "")
 
@@ -613,16 +615,18 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
     lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
     lines += [f"  warning: {r['name']}: {r['sky_warning']}" for r in report["runs"]
               if r.get("sky_warning")]
-    lines += [f"  note: {r['name']}: {DATED_BY_TRUTH}" for r in report["runs"]
-              if r.get("dated_by") == "truth"]
+    lines += [f"  note: {r['name']}: {n}" for r in report["runs"] for n in ingest_notes(r)]
     for c in report.get("causes", []):
         if c["name"] == "truth_offset" and c["applied"]:
             lines.append(f"  cause: the truth of {c['run']} sits {c['size_m']:.1f} m off "
                          f"(E {c['east_m']:+.1f} m, N {c['north_m']:+.1f} m; p "
                          f"{c['p_value']:.2g}): moved before judging")
-        elif c["name"] == "time_offset" and abs(c["lag_s"]) >= 0.2:
-            lines.append(f"  cause?: the fixes lag the truth of {c['run']} by "
-                         f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
+        elif c["name"] == "time_offset":
+            if cz.clock_note(c):
+                lines.append(f"  cause: {cz.clock_note(c)}")
+            if abs(c["lag_s"]) >= 0.2:
+                lines.append(f"  cause?: the fixes lag the truth of {c['run']} by "
+                             f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
         elif c["name"] == "georeference_model" and c.get("applied", True):
             lines.append(f"  cause: {c['what']}")
         elif c["name"] == "georeference_model":
