@@ -406,6 +406,14 @@ def test_the_report_says_which_values_round_into_a_fits_interval():
     effect["params"] = {"tau_s": 16.0, "sigma_m": 4.0}
     assert tool.summary_lines(report)[-1].endswith(
         "tau_s=16 (>= 16: at the grid's end, a bound), sigma_m=4 (3..4)")
+    # a learned sky mask's table is said by its cells that attenuate, not cell by cell
+    effect = {"name": "sky_mask", "accepted": False, "gap_before": 1.0, "gap_after": 1.0,
+              "fit": {}, "params": {"az_bin_deg": 30, "atten_db": [[0.0, 0.0, 3.0],
+                                                                   [2.0, 0.0, 0.0]]}}
+    report["effects"] = [effect]
+    said = "az_bin_deg=30, atten_db=2 of 6 cells not zero, up to 3"
+    assert tool.summary_lines(report)[-1].endswith(said)
+    assert rp._effect_rows(report)[0]["params"] == said
 
 
 def test_selfcheck_ranks_injected_effects_first(tmp_path):

@@ -56,6 +56,17 @@ class Axis:
         return nxt
 
 
+def value_text(value: Any) -> str:
+    """A parameter's value for people: a number as ``%g``; a table of numbers (a learned sky
+    mask's attenuation per azimuth-elevation bin) as how many of its cells are not zero and the
+    largest, not its every cell."""
+    if isinstance(value, list | tuple) and value and isinstance(value[0], list | tuple):
+        flat = [float(x) for row in value for x in row]
+        nz = [x for x in flat if x]
+        return f"{len(nz)} of {len(flat)} cells not zero" + (f", up to {max(nz):g}" if nz else "")
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 def grid_span(grid: Sequence[float], lo: float, hi: float) -> list[float]:
     """The values a fit resolves into the grid points from ``lo`` to ``hi``: the span widened
     half-way to the nearest grid values outside it (a value between the interval's end and the

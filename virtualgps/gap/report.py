@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps.gap import causes as cz
+from virtualgps.gap import effects as fx
 from virtualgps.gap.ingest import ingest_notes
 
 
@@ -275,7 +276,8 @@ def _effect_rows(report: dict) -> list[dict]:
             notes.append("added, then taken out: " + e["removed"])
         elif not e.get("accepted") and e.get("accepted_test"):
             notes.append("not added: " + e["accepted_test"])
-        rows.append({"effect": e["name"], "added": e.get("accepted"), "params": e.get("params"),
+        params = ", ".join(f"{k}={fx.value_text(v)}" for k, v in (e.get("params") or {}).items())
+        rows.append({"effect": e["name"], "added": e.get("accepted"), "params": params,
                      "held-out gap before": e.get("gap_before"),
                      "after": e.get("gap_after"),
                      "chosen in outer groups": e.get("outer_share"),

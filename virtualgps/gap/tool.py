@@ -584,7 +584,7 @@ def _num(v: Any, fmt: str = ".3g") -> str:
 def _param(name: str, value: Any, fit: dict) -> str:
     """``name=value``, with the values that round into its interval's grid points (or "not
     identifiable", or the bound of a fit left at its grid's end) where the fit says."""
-    text = f"{name}={value:g}" if isinstance(value, float) else f"{name}={value}"
+    text = f"{name}={fx.value_text(value)}"
     if fit.get("identifiable", {}).get(name) is False:
         return text + " (not identifiable)"
     if name in fit.get("bounds", {}):
