@@ -110,14 +110,15 @@ def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
 
 def choose_effects(sim: Simulator, base: dict, opts: Options, has_mesh: bool, has_gsv: bool,
                    progress: Callable[[str], None] | None = None,
-                   systems: tuple[str, str] = ("", "G")) -> Choice:
+                   systems: tuple[str, str] = ("", "G"), starts: bool = True) -> Choice:
     """The full selection (every unit; the calibrated profile and the ranking) and, where the
     design allows, the outer test, all simulated in shared batches. ``systems``: RINEX letters
-    of the systems the logs list and of those the ephemeris holds (``constellations``)."""
+    of the systems the logs list and of those the ephemeris holds (``constellations``);
+    ``starts``: some log starts at power-on (``cold_start``)."""
     design: Design = sim.design
 
     def candidates(table: dict):
-        return fx.candidates(table, has_mesh, opts.effects, has_gsv, *systems)
+        return fx.candidates(table, has_mesh, opts.effects, has_gsv, *systems, starts=starts)
 
     units = list(range(len(design.units)))
     fit_units = ([len(design.units) + i for i in range(len(design.whole))]

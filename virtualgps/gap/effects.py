@@ -170,6 +170,12 @@ def _enabled(profile: dict[str, Any], table: str) -> bool:
     return bool(profile.get(table, {}).get("enabled", False))
 
 
+def _hot_start(profile: dict[str, Any]) -> bool:
+    """The profile powers on with a hot start or none (a fix within a second or two)."""
+    return _enabled(profile, "cold_start") and profile["cold_start"].get(
+        "power_on", "none") in ("hot", "none")
+
+
 def _default(axes: tuple[Axis, ...], own: dict[str, Any]) -> dict[str, Any]:
     """Per axis the grid value nearest the profile's own value where it names one, else the
     grid's centre (the lower middle of an even count)."""
@@ -204,8 +210,11 @@ def candidates(
     has_gsv: bool = False,
     systems_seen: str = "",
     systems_held: str = "G",
+    starts: bool = True,
 ) -> tuple[list[Candidate], dict[str, str]]:
-    """The effects a profile lacks (or has switched off) that can be tried on it.
+    """The effects a profile lacks (or has switched off) that can be tried on it. A profile
+    that powers on with a hot start (or none) lacks a slow start: ``cold_start`` is tried on
+    it too.
 
     Parameters
     ----------
@@ -216,6 +225,7 @@ def candidates(
     has_gsv : the real logs list satellites with SNR (``sky_mask`` is learned from them)
     systems_seen : RINEX letters of the systems the real logs list (``constellations``)
     systems_held : RINEX letters of the systems the ephemeris holds satellites of
+    starts : some run's log starts at power-on (without it ``cold_start`` changes nothing)
     names : restrict to these effects (``--effects``); None: every one
 
     Returns
@@ -234,8 +244,12 @@ def candidates(
             continue
         table = "sky" if name == "elevation_mask" else name
         if name not in ("noise_level", "elevation_mask", "constellations") and _enabled(
-                profile, table):
+                profile, table) and not (name == "cold_start" and _hot_start(profile)):
             continue  # already in the profile
+        if name == "cold_start" and not starts:
+            skipped[name] = ("no run starts at power-on (each log's first epoch has a fix): "
+                             "a start-up cannot show")
+            continue
         if name == "constellations":
             c = _constellations(profile, systems_seen, systems_held)
             if c is None:
@@ -309,6 +323,9 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
             return ({name: {**on, "power_on": "hot"}} if v == 0 else
                     {name: {**on, "power_on": "cold", "ttff_cold_s": v}})
         axes = (Axis("ttff_cold_s", (0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 90.0), 0.0, 1800.0),)
+        # (a hot-starting profile names no cold TTFF: the grid's centre, as for one without a
+        # start-up; where the training units hold no power-on every point ties and the fold
+        # that holds it out is judged with that default)
         return Candidate(name, axes, make_start, ("power_on", "ttff_cold_s"),
                          _default(axes, profile.get(name, {})))
     if name == "nlos":

@@ -277,7 +277,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     choice = None
     if design.claims:
         choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say,
-                                   systems=(logged, "".join(sorted(held))))
+                                   systems=(logged, "".join(sorted(held))),
+                                   starts=any(r.view.started for r in runs))
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
     final_sims = None
@@ -648,6 +649,9 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
         lines.append(f"  effect {e['name']} ({mark}){tie}: held-out gap "
                      f"{e['gap_before']:.3f} -> {e['gap_after']:.3f}"
                      + (f"; {params}" if params else ""))
+    left = list(dict.fromkeys(u["metric"] for u in report.get("unexplained", [])))
+    if left:
+        lines.append("  unexplained (outside the final ensemble): " + ", ".join(left))
     if report.get("not_assessed"):
         lines.append("  not assessed: " + ", ".join(sorted({n["metric"]
                                                              for n in report["not_assessed"]})))
