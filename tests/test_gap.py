@@ -462,6 +462,17 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
     assert res["confusion"]["nothing@holux-m1000"] == {"nothing": 1}
 
 
+def test_a_null_trial_takes_any_profile():
+    """``nothing@PROFILE`` is the null of any profile (a name or a TOML path), in the four
+    kinds of place; usarsim's in open sky."""
+    from virtualgps.gap import synthetic
+
+    for name in ("ublox-m8n", "phone", "my/own.toml"):
+        spec = synthetic.spec_of(f"nothing@{name}")
+        assert spec.base == name and spec.scenarios == synthetic.ALL_SCENARIOS
+    assert synthetic.spec_of("nothing@usarsim").scenarios == ("static_open", "moving_open")
+
+
 def test_selfcheck_tells_the_papers_noise_from_dop_driven_errors(tmp_path):
     """Both make larger white errors; the paper's leaves the height alone and DOP-driven ones
     scatter it (``up_p68_m``): without that metric 3 of 10 noise_level trials went to

@@ -246,7 +246,7 @@ def spec_of(label: str) -> Spec:
     """The trial spec of an effect name, a pair ``a+b`` of effects or ``nothing@PROFILE``."""
     if label.startswith(NOTHING):
         base = label.partition("@")[2] or "holux-m1000"
-        return Spec(label, "null", base, {}, (), NULL_SCENARIOS[base])
+        return Spec(label, "null", base, {}, (), NULL_SCENARIOS.get(base, ALL_SCENARIOS))
     names = tuple(label.split("+"))
     injs = [INJECTIONS[n] for n in names]
     if len({i.base for i in injs}) != 1:
@@ -259,9 +259,10 @@ def spec_of(label: str) -> Spec:
                 common or injs[0].scenarios)
 
 
-# Null trials: logs made by the profile under test itself, in each kind of place.
-NULL_SCENARIOS = {"holux-m1000": ("static_open", "moving_open", "static_built", "moving_built"),
-                  "usarsim": ("static_open", "moving_open")}
+# Null trials: logs made by the profile under test itself, in each kind of place (any other
+# profile, a name or a TOML path: in all four).
+ALL_SCENARIOS = ("static_open", "moving_open", "static_built", "moving_built")
+NULL_SCENARIOS = {"holux-m1000": ALL_SCENARIOS, "usarsim": ("static_open", "moving_open")}
 
 
 # Two effects at once, on the profile both are withheld from, where both can show.
