@@ -206,9 +206,33 @@ def test_a_run_too_short_for_blocks_claims_nothing():
 
 
 def test_three_runs_are_left_out_one_at_a_time():
-    ts = [np.arange(300.0)] * 3
+    ts = [np.arange(300.0) + 1000.0 * k for k in range(3)]
     d = design.make_design(["a", "b", "c"], ts, [np.ones(300, bool)] * 3, [np.nan] * 3, 4)
     assert d.scheme == "leave one run out" and len(d.units) == 3 and d.outer == [[0], [1], [2]]
+
+
+def test_runs_at_the_same_time_are_held_out_together():
+    """Two phones in one car share their errors' slow part: the same time block of both is one
+    key, held out together by the outer groups and the inner folds; three such runs are not
+    left out one at a time. A run that overlaps neither is its own."""
+    t = np.arange(1800.0)
+    ones = np.ones(t.size, bool)
+    d = design.make_design(["a", "b"], [t, t + 0.4], [ones, ones], [60.0, 90.0], 4)
+    assert d.claims and "held out together" in d.scheme and d.guard_s == 90.0
+    assert len(d.units) == 8 and len(set(d.unit_keys())) == 4
+    for g in d.outer:  # each outer group: both runs' blocks of its times
+        assert sorted(d.units[u].run for u in g) == [0, 1]
+        assert len({d.unit_keys()[u] for u in g}) == 1
+    inner = [u for u in range(8) if u not in d.outer[0]]
+    for f in design.folds(inner, 3, d.unit_keys()):
+        assert sorted(d.units[u].run for u in f) == [0, 1]
+    d3 = design.make_design(["a", "b", "c"], [t, t, t + 10_000.0], [ones] * 3, [60.0] * 3, 4)
+    assert d3.scheme.startswith("leave one time block out") and len(set(d3.unit_keys())) == 8
+    assert d3.units[-1].run == 2 and d3.unit_keys()[-1] != d3.unit_keys()[0]
+    # (a short pair: one key of two blocks is no held-out test)
+    short = np.arange(200.0)
+    d2 = design.make_design(["a", "b"], [short, short], [np.ones(200, bool)] * 2, [60.0] * 2, 4)
+    assert not d2.claims and "1 unit(s)" in d2.warnings[-1]
 
 
 # --- fits ----------------------------------------------------------------------------------------

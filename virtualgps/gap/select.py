@@ -567,7 +567,7 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
     full : the reported selection: also measure the per-PRN tracking disagreement, and widen
         the fits' intervals by refits (:func:`fit_final`)
     """
-    folds = make_folds(units, k_folds)
+    folds = make_folds(units, k_folds, sim.design.unit_keys())
     train = [[u for u in units if u not in f] for f in folds]
     n_f = len(folds)
     # (the base's held-out scores of every unit read are the guard of every table's score:
