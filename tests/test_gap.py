@@ -94,6 +94,15 @@ def test_candidates_are_the_effects_a_profile_lacks_and_build_valid_profiles():
     assert "cold_start" in fx.candidates(holux, False, starts=False)[1]
     cold_holux = fx.apply(holux, cold.grid[-1])
     assert "cold_start" not in {c.name for c in fx.candidates(cold_holux, False)[0]}
+    # its error is DOP-driven: noise_level scales the whole range-error budget (the UERE and
+    # the correlated error's sigma), from 1, the profile as it is
+    nl = {c.name: c for c in fx.candidates(holux, has_mesh=False)[0]}["noise_level"]
+    assert nl.points[nl.default_index] == {"scale": 1.0}
+    same = fx.apply(holux, nl.grid[nl.default_index])
+    assert build_profile(same) == build_profile(holux)
+    third = build_profile(fx.apply(holux, nl.grid[0]))  # (the grid's 0.25)
+    assert third.correlated_error.sigma_m == pytest.approx(0.25 * 3.5, abs=1e-3)
+    assert third.dop_error.iono_zenith_m == pytest.approx(0.5)
     for c in cands:
         for pt in (c.grid[0], c.grid[-1], c.grid[c.default_index]):
             build_profile(fx.apply(usarsim, pt))  # every grid point is a valid profile
