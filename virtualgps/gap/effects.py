@@ -292,9 +292,10 @@ GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps 
 
 def _dop_noise_level(profile: dict) -> Candidate:
     """``noise_level`` of a profile whose error is DOP-driven (``dop_error``, with or without a
-    range-domain ``correlated_error``): one scale on its whole range-error budget, the UERE
-    terms and the correlated error's sigma, from 1 (the profile as it is). A receiver whose
-    errors are a third of the profile's, or three times, differs by that scale first."""
+    ``correlated_error``): one scale on its whole error budget, the UERE terms and the
+    correlated error's sigma (range or position domain), from 1 (the profile as it is). A
+    receiver whose errors are a third of the profile's, or three times, differs by that scale
+    first."""
     dop = {k: float(profile.get("dop_error", {}).get(k, v)) for k, v in UERE_M.items()}
     ce = profile.get("correlated_error", {})
     sigma = float(ce.get("sigma_m", 2.0)) if ce.get("enabled") else None
