@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from virtualgps.receiver.profiles import build_profile, merge
+from virtualgps.receiver.profiles import CorrelatedErrorParams, build_profile, merge
 
 # Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
 EFFECT_NAMES = (
@@ -298,7 +298,8 @@ def _dop_noise_level(profile: dict) -> Candidate:
     first."""
     dop = {k: float(profile.get("dop_error", {}).get(k, v)) for k, v in UERE_M.items()}
     ce = profile.get("correlated_error", {})
-    sigma = float(ce.get("sigma_m", 2.0)) if ce.get("enabled") else None
+    sigma = (float(ce.get("sigma_m", CorrelatedErrorParams.sigma_m)) if ce.get("enabled")
+             else None)
 
     def make(p: dict) -> dict:
         f = p["scale"]
