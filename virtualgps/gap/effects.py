@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from virtualgps.receiver.profiles import CorrelatedErrorParams, build_profile, merge
+from virtualgps.receiver.profiles import build_profile, merge
 
 # Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
 EFFECT_NAMES = (
@@ -290,34 +290,10 @@ UERE_M = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m
 GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps about 1
 
 
-def _dop_noise_level(profile: dict) -> Candidate:
-    """``noise_level`` of a profile whose error is DOP-driven (``dop_error``, with or without a
-    ``correlated_error``): one scale on its whole error budget, the UERE terms and the
-    correlated error's sigma (range or position domain), from 1 (the profile as it is). A
-    receiver whose errors are a third of the profile's, or three times, differs by that scale
-    first."""
-    dop = {k: float(profile.get("dop_error", {}).get(k, v)) for k, v in UERE_M.items()}
-    ce = profile.get("correlated_error", {})
-    sigma = (float(ce.get("sigma_m", CorrelatedErrorParams.sigma_m)) if ce.get("enabled")
-             else None)
-
-    def make(p: dict) -> dict:
-        f = p["scale"]
-        out = {"dop_error": {k: round(v * f, 3) for k, v in dop.items()}}
-        if sigma is not None:
-            out["correlated_error"] = {"sigma_m": round(sigma * f, 3)}
-        return out
-    axes = (Axis("scale", GEOMETRIC, 0.0, 100.0),)
-    return Candidate("noise_level", axes, make,
-                     tuple(UERE_M) if sigma is None else ("sigma_m", "rx_noise_m"), {"scale": 1.0})
-
-
 def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool,  # noqa: C901
                has_gsv: bool):
     on = {"enabled": True}
     if name == "noise_level":
-        if not baseline and dop:
-            return _dop_noise_level(profile)
         if not baseline:
             return "the profile has no baseline noise to scale (noise.model = \"none\")"
         mx = float(profile.get("noise", {}).get("max_noise_m", 3.0))
