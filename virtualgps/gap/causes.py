@@ -223,8 +223,9 @@ def clock_note(cause: dict) -> str | None:
 
 def time_offset(run: Run, corr_time_s: float) -> dict | None:
     """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
-    +-30 s), and the least-squares lag of the fixes behind the truth per block with a 95 %
-    interval over blocks (None where the truth does not move, or moves at one velocity)."""
+    +-30 s, widened to +-600 s while its best lies at the end), and the least-squares lag of
+    the fixes behind the truth per block with a 95 % interval over blocks (None where the
+    truth does not move, or moves at one velocity)."""
     v = run.view
     info = run.info.get("offset", {})
     moving = v.valid & (v.speed_mps >= MOVING_MPS)
