@@ -98,7 +98,8 @@ def groups(indices: list[int], k: int, keys: list[int] | None = None) -> list[li
 
 def block_bounds(tv_unix_s: np.ndarray, guard_s: float, max_blocks: int
                  ) -> list[tuple[float, float]]:
-    """(start, end) times of the blocks over sorted epoch times, separated by guard gaps: as
+    """(start, end) times of the time blocks over sorted epoch times (of one run, or of
+    simultaneous runs on one clock), separated by guard gaps: as
     many as fit (each at least a guard and :data:`MIN_BLOCK_S` long), ``max_blocks`` at most;
     none when the times span too little."""
     if tv_unix_s.size < 2:
@@ -118,25 +119,6 @@ def _in_block(t_unix_s: np.ndarray, valid: np.ndarray, lo: float, hi: float, las
     return valid & (t_unix_s >= lo) & ((t_unix_s <= hi) if last else (t_unix_s < hi))
 
 
-def blocks(t_unix_s: np.ndarray, valid: np.ndarray, guard_s: float, max_blocks: int
-           ) -> list[np.ndarray]:
-    """Time blocks of one run separated by guard gaps (:func:`block_bounds`).
-
-    Parameters
-    ----------
-    t_unix_s : (n,) epoch times; valid : (n,) bool, epochs with truth
-    guard_s : seconds between blocks; max_blocks : at most this many
-
-    Returns
-    -------
-    masks : (n,) bool each, in time order; fewer than two when the run is too short
-    """
-    bounds = block_bounds(t_unix_s[valid], guard_s, max_blocks)
-    out = [_in_block(t_unix_s, valid, lo, hi, b == len(bounds) - 1)
-           for b, (lo, hi) in enumerate(bounds)]
-    return [m for m in out if m.any()]
-
-
 def simultaneous(t_unix_s: list[np.ndarray], valid: list[np.ndarray]) -> list[int]:
     """Per run, its cluster: runs whose spans of valid epochs overlap (directly or through
     another run) share one, numbered in the order of their first run."""
@@ -153,9 +135,7 @@ def simultaneous(t_unix_s: list[np.ndarray], valid: list[np.ndarray]) -> list[in
         for b in range(a):
             if spans[a][0] <= spans[b][1] and spans[b][0] <= spans[a][1]:
                 cluster[root(a)] = root(b)
-    roots = [root(i) for i in range(len(spans))]
-    number = {r: n for n, r in enumerate(dict.fromkeys(roots))}
-    return [number[r] for r in roots]
+    return _numbered([root(i) for i in range(len(spans))])
 
 
 def make_design(names: list[str], t_unix_s: list[np.ndarray], valid: list[np.ndarray],
@@ -210,8 +190,8 @@ def make_design(names: list[str], t_unix_s: list[np.ndarray], valid: list[np.nda
             "; runs at the same time held out together" if together else "")
         fit_on_whole = len(names) == 1
     keys = _numbered(keys) if keys else []
-    design = Design(units, whole, fit_on_whole, guard, scheme, [], warnings, keys)
-    n_keys = len(set(design.unit_keys()))
+    n_keys = len(set(keys)) if keys else len(units)
+    outer = []
     if n_keys < MIN_UNITS:
         span = max((float(t[v][-1] - t[v][0]) if v.sum() > 1 else 0.0)
                    for t, v in zip(t_unix_s, valid, strict=True))
@@ -220,8 +200,8 @@ def make_design(names: list[str], t_unix_s: list[np.ndarray], valid: list[np.nda
             f"(runs of {span:.0f} s hold blocks of at least {max(MIN_BLOCK_S, guard):.0f} s "
             f"separated by the error's correlation time, {guard:.0f} s); no effect is claimed, "
             "the located gaps stand alone")
-        return design
-    outer = groups(list(range(len(units))), MAX_OUTER, design.unit_keys())
+    else:
+        outer = groups(list(range(len(units))), MAX_OUTER, keys or None)
     return Design(units, whole, fit_on_whole, guard, scheme, outer, warnings, keys)
 
 
