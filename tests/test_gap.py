@@ -94,6 +94,15 @@ def test_candidates_are_the_effects_a_profile_lacks_and_build_valid_profiles():
     assert "cold_start" in fx.candidates(holux, False, starts=False)[1]
     cold_holux = fx.apply(holux, cold.grid[-1])
     assert "cold_start" not in {c.name for c in fx.candidates(cold_holux, False)[0]}
+    # its error is DOP-driven: noise_level scales the whole range-error budget (the UERE and
+    # the correlated error's sigma), from 1, the profile as it is
+    nl = {c.name: c for c in fx.candidates(holux, has_mesh=False)[0]}["noise_level"]
+    assert nl.points[nl.default_index] == {"scale": 1.0}
+    same = fx.apply(holux, nl.grid[nl.default_index])
+    assert build_profile(same) == build_profile(holux)
+    third = build_profile(fx.apply(holux, nl.grid[0]))  # (the grid's 0.25)
+    assert third.correlated_error.sigma_m == pytest.approx(0.25 * 3.5, abs=1e-3)
+    assert third.dop_error.iono_zenith_m == pytest.approx(0.5)
     for c in cands:
         for pt in (c.grid[0], c.grid[-1], c.grid[c.default_index]):
             build_profile(fx.apply(usarsim, pt))  # every grid point is a valid profile
@@ -680,9 +689,9 @@ def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
 def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared_data,
                                                                           tmp_path):
     """The GSDC drive, untouched and then with a pure output delay or a first-order filter
-    injected into its fixes, or its truth moved by metres. The untouched phone log needs a
-    velocity-aided filter against holux-m1000 (its errors are smoother, its track not
-    lagged); the delay is the first effect the untouched log did not need, its length near
+    injected into its fixes, or its truth moved by metres. The untouched phone log needs
+    holux-m1000's range errors scaled down (a dual-frequency phone's errors are a fraction of
+    a 2008 logger's); the delay is the first effect the untouched log did not need, its length near
     the injected one; the filter is refitted as a filter of the motion near the injected
     time constant; the wrong truth is named as a truth offset and no receiver effect absorbs
     it."""
@@ -692,7 +701,7 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
                                     effects=("latency", "nav_filter", "truth_offset"))
     assert note is None
     delay, filt, off = rows
-    assert delay["base_accepted"] == ["nav_filter"]
+    assert delay["base_accepted"] == ["noise_level"]
     assert delay["success"] and delay["added_first"] == "latency", delay
     assert delay["recovered"]["latency_s"] == pytest.approx(delay["params"]["latency_s"],
                                                             abs=0.3)

@@ -267,6 +267,34 @@ def test_an_axis_extends_on_its_own_spacing():
     assert lat.step_beyond(False) is None  # 0.1 - 0.15 < 0
 
 
+def test_a_refit_against_the_end_of_its_cut_grid_goes_on_past_it():
+    c = _cand()
+    cut = c.near([{"tau_s": 120.0, "sigma_m": 4.0}])  # tau 60-240, sigma 2-4
+    assert cut.whole is c and cut.near([cut.points[0]]).whole is c
+    assert [a.values for a in cut.axes] == [(60.0, 120.0, 240.0), (2.0, 4.0)]
+    pts = cut.points
+
+    def obj(f) -> np.ndarray:
+        return np.array([f(p["tau_s"], p["sigma_m"]) for p in pts])
+    # the best tau at the cut's lower end (60 s), clearly below 120 s: the whole grid has 30 s
+    assert select.pulled_past_cut(cut, obj(lambda tau, sig: tau / 100.0))
+    # ... within FLAT_MIN of its inward neighbour: the data cannot say the fit would go on
+    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: tau / 1e4))
+    # the best inside the cut, or at an end of the whole grid (sigma 4), stays
+    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: abs(tau - 120.0) / 100.0))
+    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: -sig + abs(tau - 120.0)))
+    # sigma's cut end 2 is not the whole grid's 1
+    assert select.pulled_past_cut(cut, obj(lambda tau, sig: sig + abs(tau - 120.0)))
+    # a fit at a cut end extends into the whole grid first, then past it on its own spacing
+    assert cut.extended("tau_s", False).axes[0].values == (30.0, 60.0, 120.0, 240.0)
+    assert cut.extended("tau_s", True).axes[0].values[-1] == 480.0
+    assert cut.whole_beyond("sigma_m", True) is None and c.whole_beyond("tau_s", True) is None
+    assert cut.extended("sigma_m", True).axes[1].values[-1] == 6.0
+    # a whole grid has no cut; the objective's gaps (NaN) are left out
+    assert not select.pulled_past_cut(c, np.arange(len(c.points), dtype=float))
+    assert not select.pulled_past_cut(cut, np.full(len(pts), np.nan))
+
+
 def test_defaults_are_the_profiles_own_values_or_the_grids_centre():
     usarsim = {"noise": {"model": "usarsim"}}
     cands = {c.name: c for c in fx.candidates(usarsim, has_mesh=False)[0]}

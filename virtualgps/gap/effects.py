@@ -90,6 +90,7 @@ class Candidate:
     default : the default point {axis: value}
     learned : sky_mask: its grid is learned per fold, at these levels
     learned_atten : sky_mask: also C/N0 deficits as attenuation (cn0_tracking on)
+    whole : the candidate this one was cut from (:meth:`near`); None: it is whole
     """
 
     name: str
@@ -99,6 +100,7 @@ class Candidate:
     default: dict[str, Any] = field(default_factory=dict)
     learned: tuple[float, ...] = ()
     learned_atten: bool = False
+    whole: Candidate | None = field(default=None, repr=False, compare=False)
 
     @property
     def points(self) -> list[dict[str, Any]]:
@@ -122,19 +124,35 @@ class Candidate:
         return max(1, len(self.axes))
 
     def extended(self, axis: str, upper: bool) -> Candidate | None:
-        """The candidate with one more value past an end of ``axis`` (None: cannot)."""
+        """The candidate with one more value past an end of ``axis`` (None: cannot): the next
+        value of the whole grid where this one is cut from it (:meth:`near`), else one step
+        on the axis's own spacing."""
         out = []
         new = None
         for a in self.axes:
             if a.name == axis:
-                new = a.step_beyond(upper)
+                new = self.whole_beyond(a.name, upper)
+                new = a.step_beyond(upper) if new is None else new
                 if new is None:
                     return None
                 vals = tuple(sorted(set(a.values) | {new}))
                 a = Axis(a.name, vals, a.lo, a.hi)
             out.append(a)
         return Candidate(self.name, tuple(out), self.make, self.params, self.default,
-                         self.learned, self.learned_atten) if new is not None else None
+                         self.learned, self.learned_atten, self.whole) if new is not None else None
+
+    def whole_beyond(self, axis: str, upper: bool) -> Any:
+        """The whole grid's value next past an end of ``axis`` where this candidate is cut
+        from it (:meth:`near`); None: none."""
+        if self.whole is None:
+            return None
+        cut = next(a for a in self.axes if a.name == axis)
+        whole = next(a for a in self.whole.axes if a.name == axis)
+        if not all(isinstance(v, int | float) for v in whole.values):
+            return None
+        past = [v for v in whole.values
+                if (v > max(cut.values) if upper else v < min(cut.values))]
+        return (min(past) if upper else max(past)) if past else None
 
     def near(self, chosen: list[dict[str, Any]]) -> Candidate:
         """The candidate with each axis cut to the values within one grid step of those
@@ -156,7 +174,7 @@ class Candidate:
                     abs(x - v) if isinstance(x, int | float) and isinstance(v, int | float)
                     else 1))
         return Candidate(self.name, tuple(out), self.make, self.params, default, self.learned,
-                         self.learned_atten)
+                         self.learned_atten, self.whole or self)
 
     def params_of(self, overrides: dict[str, dict[str, Any]]) -> dict[str, Any]:
         """The fitted parameters of an override table as profile keys (flat, for the report)."""
@@ -290,10 +308,32 @@ UERE_M = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m
 GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps about 1
 
 
+def _dop_noise_level(profile: dict) -> Candidate:
+    """``noise_level`` of a profile whose error is DOP-driven (``dop_error``, with or without a
+    range-domain ``correlated_error``): one scale on its whole range-error budget, the UERE
+    terms and the correlated error's sigma, from 1 (the profile as it is). A receiver whose
+    errors are a third of the profile's, or three times, differs by that scale first."""
+    dop = {k: float(profile.get("dop_error", {}).get(k, v)) for k, v in UERE_M.items()}
+    ce = profile.get("correlated_error", {})
+    sigma = float(ce.get("sigma_m", 2.0)) if ce.get("enabled") else None
+
+    def make(p: dict) -> dict:
+        f = p["scale"]
+        out = {"dop_error": {k: round(v * f, 3) for k, v in dop.items()}}
+        if sigma is not None:
+            out["correlated_error"] = {"sigma_m": round(sigma * f, 3)}
+        return out
+    axes = (Axis("scale", GEOMETRIC, 0.0, 100.0),)
+    return Candidate("noise_level", axes, make,
+                     tuple(UERE_M) if sigma is None else ("sigma_m", "rx_noise_m"), {"scale": 1.0})
+
+
 def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bool,  # noqa: C901
                has_gsv: bool):
     on = {"enabled": True}
     if name == "noise_level":
+        if not baseline and dop:
+            return _dop_noise_level(profile)
         if not baseline:
             return "the profile has no baseline noise to scale (noise.model = \"none\")"
         mx = float(profile.get("noise", {}).get("max_noise_m", 3.0))

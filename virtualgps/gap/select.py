@@ -25,7 +25,9 @@ and, in the reported selection, the points that fits to logs drawn from the chos
 (:func:`refit_points`): the seeds' noise of the objective alone leaves out the real log's own
 luck (the near-optimal points alone held the injected value in 49 of 54 self-check parameters; 3
 of the 5 misses were a single grid point). Later rounds try the candidates that helped, refitted
-around the points their folds chose, on top of the effects added so far. Where the first round's
+around the points their folds chose, on top of the effects added so far; one whose refit runs
+into an end of that cut is tried again on its whole grid (:func:`pulled_past_cut`), and the fit
+of an added one extends a cut axis into its whole grid first. Where the first round's
 runner-up, a competing explanation, is never added, a second search starts from it, kept where
 it ends clearly lower (by what adding an effect needs). At the end an added effect the others
 make redundant (the held-out gap no higher without it) is taken out again.
@@ -71,6 +73,8 @@ class Tried:
     fold_overrides : the override tables fitted per fold
     before, after : (F,) held-out gap per fold without and with it (held-out seeds)
     before_fit, after_fit : the same with the fitting seeds (the ranking's second opinion)
+    past_cut : a grid cut to part of its values (a later round's) was fitted against a cut
+        end in some fold (:func:`pulled_past_cut`)
     """
 
     cand: fx.Candidate
@@ -83,6 +87,7 @@ class Tried:
     metrics_before: dict[str, float]
     metrics_after: dict[str, float]
     tied_with: list[str] = field(default_factory=list)
+    past_cut: bool = False
 
     @property
     def gap_after(self) -> float:
@@ -107,6 +112,32 @@ def fit_index(objective: np.ndarray, default: int, flat: float = FLAT_MIN) -> in
     if np.isfinite(objective[default]) and objective[default] - objective[best] <= flat:
         return default
     return best
+
+
+def pulled_past_cut(cand: fx.Candidate, objective: np.ndarray) -> bool:
+    """Whether a candidate cut to part of its grid (:meth:`Candidate.near`) is fitted against an
+    end of the cut that is not an end of its whole grid: the objective's best point lies there,
+    lower by more than FLAT_MIN than its neighbour inward along that axis, so the fit would go
+    on past the cut. (A later round refits around an earlier round's points; once other
+    effects are added, a parameter's best value may lie far from them: a noise scale first
+    fitted at 4 to cover a filter's lag belongs near 0.2 once the filter is added.)
+
+    objective : (points,) the mean gap of each of ``cand``'s points, NaN left out"""
+    if cand.whole is None or not np.isfinite(objective).any():
+        return False
+    points = cand.points
+    best = int(np.nanargmin(objective))
+    p = points[best]
+    for a, w in zip(cand.axes, cand.whole.axes, strict=True):
+        if len(a.values) < 2:
+            continue
+        for end, inward, whole_end in ((a.values[0], a.values[1], w.values[0]),
+                                       (a.values[-1], a.values[-2], w.values[-1])):
+            if p[a.name] == end and end != whole_end:
+                k = points.index(p | {a.name: inward})
+                if np.isfinite(objective[k]) and objective[k] - objective[best] > FLAT_MIN:
+                    return True
+    return False
 
 
 @dataclass(frozen=True)
@@ -317,10 +348,13 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
     yield req
     chosen: dict[tuple[int, int], int] = {}
     points: dict[tuple[int, int], dict] = {}
+    past_cut: set[int] = set()
     req = []
     for (ci, f), (_, default) in options.items():
         j = np.array([sim.gap(t, FIT, train[f]) for t in tables[ci, f]])
         k = chosen[ci, f] = fit_index(j, default)
+        if not cands[ci].learned and pulled_past_cut(cands[ci], j):
+            past_cut.add(ci)
         points[ci, f] = cands[ci].points[k] if not cands[ci].learned else {}
         held = folds[f]
         for t in (tables[ci, f][k], fold_tables[f]):
@@ -339,7 +373,8 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
             per_fold(with_t, HELD),
             per_fold(fold_tables, FIT), per_fold(with_t, FIT),
             _mean_parts([sim.parts(fold_tables[f], HELD, folds[f]) for f in range(n_f)]),
-            _mean_parts([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)])))
+            _mean_parts([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)]),
+            past_cut=ci in past_cut))
     return out
 
 
@@ -420,8 +455,10 @@ def fit_final(sim: Simulator, table: dict, cand: fx.Candidate, units: Sequence[i
                     None)
         if grow is None:
             break
-        extended.add(grow[0])
-        bigger = cand.extended(grow[0], grow[1] == "upper")
+        axis, upper = grow[0], grow[1] == "upper"
+        if cand.whole_beyond(axis, upper) is None:
+            extended.add(axis)  # (past the whole grid: one step, once)
+        bigger = cand.extended(axis, upper)
         if bigger is None:
             continue
         cand = bigger
@@ -492,6 +529,13 @@ def _rounds(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
         else:
             tried = yield from try_candidates(sim, cands, fold_tables, folds, train)
             forced = None
+            # a candidate refitted around its earlier points whose fit runs into the cut is
+            # tried again on its whole grid
+            wide = [t.cand.whole for t in tried if t.past_cut]
+            if wide:
+                again = yield from try_candidates(sim, wide, fold_tables, folds, train)
+                names = {c.name for c in wide}
+                tried = [t for t in tried if t.cand.name not in names] + again
         groups = mark_ties(tried)
         verdicts = {id(t): acceptable(t, current) for t in tried}
         rounds.append({"gap_before": current, "tried": [
