@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from virtualgps.receiver.profiles import build_profile, merge
+from virtualgps.receiver.profiles import CorrelatedErrorParams, build_profile, merge
 
 # Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
 EFFECT_NAMES = (
@@ -310,12 +310,14 @@ GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps 
 
 def _dop_noise_level(profile: dict) -> Candidate:
     """``noise_level`` of a profile whose error is DOP-driven (``dop_error``, with or without a
-    range-domain ``correlated_error``): one scale on its whole range-error budget, the UERE
-    terms and the correlated error's sigma, from 1 (the profile as it is). A receiver whose
-    errors are a third of the profile's, or three times, differs by that scale first."""
+    ``correlated_error``): one scale on its whole error budget, the UERE terms and the
+    correlated error's sigma (range or position domain), from 1 (the profile as it is). A
+    receiver whose errors are a third of the profile's, or three times, differs by that scale
+    first."""
     dop = {k: float(profile.get("dop_error", {}).get(k, v)) for k, v in UERE_M.items()}
     ce = profile.get("correlated_error", {})
-    sigma = float(ce.get("sigma_m", 2.0)) if ce.get("enabled") else None
+    sigma = (float(ce.get("sigma_m", CorrelatedErrorParams.sigma_m)) if ce.get("enabled")
+             else None)
 
     def make(p: dict) -> dict:
         f = p["scale"]
