@@ -813,7 +813,12 @@ def test_a_log_dated_by_void_rmc_alone_keeps_their_date():
         "GPGGA,120000.000,,,,,0,00,,,M,,M,,",
         "GPRMC,120000.000,V,,,,,0.00,0.00,230808,,,N")]
     ep = nmea.nmea_epochs_from_lines(lines)
-    assert utc(ep.t_unix_s[0]) == datetime(2008, 8, 23, 12, 0, 0, tzinfo=UTC)
+    assert utc(ep.t_unix_s[0]) == datetime(2008, 8, 23, 12, 0, 0, tzinfo=UTC) and ep.dated
+    # a default date never overrides the log's own, and says when it was used
+    ep = nmea.nmea_epochs_from_lines(lines, default_date=date(2020, 5, 14))
+    assert utc(ep.t_unix_s[0]) == datetime(2008, 8, 23, 12, 0, 0, tzinfo=UTC) and ep.dated
+    ep = nmea.nmea_epochs_from_lines(lines[:1], default_date=date(2020, 5, 14))
+    assert ep.t_unix_s[0] == ts(2020, 5, 14, 12, 0, 0) and not ep.dated
 
 
 def test_read_fixes_of_a_magdeburg_phone_log_agrees_with_pynmea2(shared_data):

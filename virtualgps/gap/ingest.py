@@ -188,18 +188,17 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None
     if not any(ln.strip() for ln in lines):
         raise InputFileError(path, "the log is empty")
     tally: Counter = Counter()
-    dated_by = "log"
+    near_date = (None if near_unix_s is None
+                 else datetime.fromtimestamp(near_unix_s, UTC).date())
     try:
-        ep = nmea_epochs_from_lines(lines, path, tally=tally)
+        ep = nmea_epochs_from_lines(lines, path, near_date, tally)
     except UndatedLogError:
-        if near_unix_s is None:
-            raise InputFileError(path, "no RMC or ZDA sentence gives the date of its epochs; "
-                                 "give a log with RMC or ZDA lines, or a truth pose log whose "
-                                 "times date it (--truth static cannot)") from None
-        tally.clear()
-        ep = _dated_near(nmea_epochs_from_lines(
-            lines, path, datetime.fromtimestamp(near_unix_s, UTC).date(), tally), near_unix_s)
-        dated_by = "truth"
+        raise InputFileError(path, "no RMC or ZDA sentence gives the date of its epochs; "
+                             "give a log with RMC or ZDA lines, or a truth pose log whose "
+                             "times date it (--truth static cannot)") from None
+    dated_by = "log" if ep.dated else "truth"
+    if not ep.dated:
+        ep = _dated_near(ep, near_unix_s)
     sentences, skipped = _census(tally)
     if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
         raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes")

@@ -80,6 +80,8 @@ class NmeaEpochs:
     used : (n_t, n_sat) bool, listed in the epoch's GSA
     line : (n_t,) int, 1-based line of the epoch's first timed sentence
     n_bad : int, lines holding a ``$`` that failed the checksum or had malformed fields
+    dated : bool, the log's own RMC/ZDA date its epochs (False: the caller's default date,
+        no RMC or ZDA having one)
     """
 
     t_unix_s: np.ndarray
@@ -107,6 +109,7 @@ class NmeaEpochs:
     used: np.ndarray
     line: np.ndarray
     n_bad: int
+    dated: bool = True
 
     def __len__(self) -> int:
         return int(self.t_unix_s.shape[0])
@@ -332,7 +335,8 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
     return epochs, n_bad
 
 
-def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | None) -> np.ndarray:
+def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | None
+                   ) -> tuple[np.ndarray, bool]:
     """UTC seconds of each epoch: its time of day on its own RMC/ZDA date, else on the date of
     the nearest dated epoch (in file order, the earlier on a tie), choosing among that date and
     its neighbours the one nearest in time (so a midnight between them is handled). The dates
@@ -342,6 +346,7 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
     Returns
     -------
     t_unix_s : (len(epochs),) float64
+    dated : whether an RMC or ZDA dated them (False: ``default_date`` did)
 
     Without any date, the first epoch is dated ``default_date`` and the later ones roll past
     midnight.
@@ -369,7 +374,8 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
         # (the time of day falling back by more than half a day, in file order)
         days[:] = _days(default_date.year, default_date.month, default_date.day)
         days += np.concatenate([[0], np.cumsum(np.diff(tod) < -43200.0)]).astype(np.int64)
-    elif n_t:
+        return days * 86400.0 + tod, False
+    if n_t:
         idx = np.arange(n_t)
         pos = np.clip(np.searchsorted(dated, idx), 1, max(dated.size - 1, 1))
         lo, hi = dated[np.maximum(pos - 1, 0)], dated[np.minimum(pos, dated.size - 1)]
@@ -378,7 +384,7 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
         cand = (days[near] * 86400.0 + tod)[:, None] + np.array([-86400.0, 0.0, 86400.0])
         t = cand[idx, np.argmin(np.abs(cand - anchor_t[:, None]), axis=1)]
         days = np.floor(t / 86400.0).astype(np.int64)
-    return days * 86400.0 + tod
+    return days * 86400.0 + tod, True
 
 
 def nmea_epochs_from_lines(
@@ -417,7 +423,7 @@ def nmea_epochs_from_lines(
     """
     epochs, n_bad = _read_epochs(lines, tally)
     n_t = len(epochs)
-    t_unix_s = _epoch_times_s(epochs, source, default_date)
+    t_unix_s, dated = _epoch_times_s(epochs, source, default_date)
 
     # per-satellite arrays: one column per PRN seen in GSV or GSA, filled by index arrays
     rows, prns, vals, urows, uprns = [], [], [], [], []
@@ -484,6 +490,7 @@ def nmea_epochs_from_lines(
         used=used,
         line=arr((e.line for e in epochs), np.int64),
         n_bad=n_bad,
+        dated=dated,
     )
 
 
@@ -517,7 +524,7 @@ def nmea_fixes_from_lines(
     has_gga = np.array([e.gga is not None for e in epochs], dtype=bool)
     t = np.zeros(0)
     if has_gga.any():
-        t = _epoch_times_s(epochs, source, default_date)[has_gga]
+        t = _epoch_times_s(epochs, source, default_date)[0][has_gga]
     _, first = np.unique(t, return_index=True)
     keep = np.sort(first)  # first GGA of each time, in file order
     fix_epochs = [epochs[i] for i in np.flatnonzero(has_gga)[keep]]
