@@ -300,8 +300,16 @@ def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
     report["causes"] = [dict(clock, applied_s=0.0, lag_s=1.2)]
     lines = tool.summary_lines(report)
     assert not any("the clock of" in ln for ln in lines)
-    assert "  cause?: the fixes lag the truth of drive by 1.20 s (a clock offset or an output " \
-        "latency)" in lines
+    assert "  cause?: the fixes lag the truth of drive by 1.20 s: a clock offset or an output " \
+        "latency" in lines
+    # once the diagnosis has chosen, the lag is said as what it added reads it: a filter smooths
+    # the fixes too (a clock offset does not); a pure delay and a clock offset stay aliased
+    report["causes"][0]["read_as"] = ["nav_filter"]
+    assert "by 1.20 s: read as a navigation filter's lag" in "\n".join(tool.summary_lines(report))
+    assert "here read as a navigation filter's lag" in rp._cause_rows(report)[0]["what"]
+    report["causes"][0]["read_as"] = ["latency"]
+    assert "read as an output latency (latency was added); a log-vs-truth clock offset of the " \
+        "same size moves the fixes alike" in "\n".join(tool.summary_lines(report))
 
 
 def test_bad_truth_specs_are_clear_errors():

@@ -221,6 +221,27 @@ def clock_note(cause: dict) -> str | None:
             "taken out before judging")
 
 
+# The receiver effects that make fixes lag their truth (DESIGN 7.5): what a time_offset cause's
+# lag was read as, once the diagnosis has chosen
+LAG_EFFECTS = ("latency", "nav_filter")
+
+
+def lag_reading(cause: dict) -> str:
+    """What a ``time_offset`` cause's lag was read as, by the lag effects the diagnosis added
+    (its ``read_as``, set with the report): a filter smooths the fixes as well, which a clock
+    offset does not; a pure delay and a clock offset cannot be told apart."""
+    taken = cause.get("read_as") or []
+    if taken == ["nav_filter"]:
+        return ("read as a navigation filter's lag: nav_filter was added, the fixes being "
+                "smoothed as well, which a clock offset does not do")
+    if taken == ["latency"]:
+        return ("read as an output latency (latency was added); a log-vs-truth clock offset "
+                "of the same size moves the fixes alike: check both clocks")
+    if taken:
+        return "read as " + " and ".join(taken) + " together (both were added)"
+    return "a clock offset or an output latency"
+
+
 def time_offset(run: Run, corr_time_s: float) -> dict | None:
     """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
     +-30 s, widened to +-600 s while its best lies at the end), and the least-squares lag of

@@ -221,7 +221,7 @@ def _cause_rows(report: dict) -> list[dict]:
             lo, hi = c["interval_s"]
             what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"
                     + (f" (95 %: {lo:.2f} to {hi:.2f} s)" if math.isfinite(lo) else "")
-                    + f". {c['what']}"
+                    + f". {c['what']}; here {cz.lag_reading(c)}"
                     + (f". Before that, {cz.clock_note(c)}" if cz.clock_note(c) else ""))
         elif c["name"] == "constellations":
             what = f"{c['run']}: {c['what']}"

@@ -345,6 +345,9 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
             if e["name"] == "latency" and any(c["name"] == "time_offset" for c in causes):
                 e["alias"] = ("a log-vs-truth clock offset of the same size moves the fixes "
                               "alike (see causes: time_offset)")
+        for c in causes:
+            if c["name"] == "time_offset":
+                c["read_as"] = [s["name"] for s in full.steps if s["name"] in cz.LAG_EFFECTS]
     outer = choice.outer_summary() if choice is not None else None
     whole = list(range(len(design.units), len(design.all_units())))
     if choice is not None and outer["groups"]:
@@ -627,7 +630,7 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
                 lines.append(f"  cause: {cz.clock_note(c)}")
             if abs(c["lag_s"]) >= 0.2:
                 lines.append(f"  cause?: the fixes lag the truth of {c['run']} by "
-                             f"{c['lag_s']:.2f} s (a clock offset or an output latency)")
+                             f"{c['lag_s']:.2f} s: {cz.lag_reading(c)}")
         elif c["name"] == "georeference_model" and c.get("applied", True):
             lines.append(f"  cause: {c['what']}")
         elif c["name"] == "georeference_model":
