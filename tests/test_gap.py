@@ -307,6 +307,11 @@ def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
     report["causes"][0]["read_as"] = ["nav_filter"]
     assert "by 1.20 s: read as a navigation filter's lag" in "\n".join(tool.summary_lines(report))
     assert "here read as a navigation filter's lag" in rp._cause_rows(report)[0]["what"]
+    report["causes"][0]["or_read_as"] = ["latency"]
+    assert "read as a navigation filter's lag: nav_filter was added, the fixes being smoothed " \
+        "as well, which a clock offset does not do (or as latency: an equally good " \
+        "explanation, see alternative)" in "\n".join(tool.summary_lines(report))
+    del report["causes"][0]["or_read_as"]
     report["causes"][0]["read_as"] = ["latency"]
     assert "read as an output latency (latency was added); a log-vs-truth clock offset of the " \
         "same size moves the fixes alike" in "\n".join(tool.summary_lines(report))
@@ -473,6 +478,7 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
                         labels=["nothing@holux-m1000", "cold_start+latency"])
     null, pair = res["trials"]
     assert null["ranked_first"] == "nothing" and null["accepted"] == [], null
+    assert null["alternative"] is None  # (nothing added: no second search, no alternative)
     assert null["where_outside"] <= 0.05 * null["where_rows"]
     assert res["null_calibration"]["reports"] == 1
     assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair

@@ -295,6 +295,36 @@ def test_a_refit_against_the_end_of_its_cut_grid_goes_on_past_it():
     assert not select.pulled_past_cut(cut, np.full(len(pts), np.nan))
 
 
+def test_two_searches_that_end_alike_are_a_tie_the_report_names():
+    """The second search (from the first round's runner-up) is kept only where it ends
+    clearly lower; where neither ends clearly lower with other effects, the report names the
+    other as an equally good explanation (the GSDC drive delayed 0.7 s: a filter 0.628, a
+    delay 0.600)."""
+    from virtualgps.gap import tool
+
+    def two(a: float, b: float, second=("latency", "noise_level")) -> list[dict]:
+        return [{"first": "nav_filter", "effects": ["nav_filter", "noise_level"],
+                 "gap_after": a},
+                {"first": second[0], "effects": list(second), "gap_after": b}]
+
+    paths = two(0.628, 0.600)
+    assert select.settle_paths(paths) == 0 and paths[0]["kept"] and paths[1]["tie"]
+    alt = select.alternative(paths)
+    assert alt["effects"] == ["latency", "noise_level"] and alt["chosen_gap_after"] == 0.628
+    assert "do not decide between nav_filter and latency" in alt["what"]
+    report = {"headline": [], "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [], "located": [], "profile": "holux-m1000",
+              "gap_baseline": 1.5, "causes": [], "alternative": alt}
+    assert f"  alternative: {alt['what']}" in tool.summary_lines(report)
+    # clearly lower (by more than 0.1, what adding an effect needs): the second is kept
+    paths = two(0.8, 0.6)
+    assert select.settle_paths(paths) == 1 and "tie" not in paths[0]
+    assert select.alternative(paths) is None
+    # clearly higher: no tie; the same effects found in another order: no alternative
+    for paths in (two(0.5, 0.7), two(0.6, 0.62, ("noise_level", "nav_filter"))):
+        assert select.settle_paths(paths) == 0 and select.alternative(paths) is None
+
+
 def test_defaults_are_the_profiles_own_values_or_the_grids_centre():
     usarsim = {"noise": {"model": "usarsim"}}
     cands = {c.name: c for c in fx.candidates(usarsim, has_mesh=False)[0]}

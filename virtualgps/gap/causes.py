@@ -228,18 +228,25 @@ LAG_EFFECTS = ("latency", "nav_filter")
 
 def lag_reading(cause: dict) -> str:
     """What a ``time_offset`` cause's lag was read as, by the lag effects the diagnosis added
-    (its ``read_as``, set with the report): a filter smooths the fixes as well, which a clock
-    offset does not; a pure delay and a clock offset cannot be told apart."""
+    (its ``read_as``, set with the report; ``or_read_as``: those of an equally good
+    explanation, where they differ): a filter smooths the fixes as well, which a clock offset
+    does not; a pure delay and a clock offset cannot be told apart."""
     taken = cause.get("read_as") or []
     if taken == ["nav_filter"]:
-        return ("read as a navigation filter's lag: nav_filter was added, the fixes being "
+        said = ("read as a navigation filter's lag: nav_filter was added, the fixes being "
                 "smoothed as well, which a clock offset does not do")
-    if taken == ["latency"]:
-        return ("read as an output latency (latency was added); a log-vs-truth clock offset "
+    elif taken == ["latency"]:
+        said = ("read as an output latency (latency was added); a log-vs-truth clock offset "
                 "of the same size moves the fixes alike: check both clocks")
-    if taken:
-        return "read as " + " and ".join(taken) + " together (both were added)"
-    return "a clock offset or an output latency"
+    elif taken:
+        said = "read as " + " and ".join(taken) + " together (both were added)"
+    else:
+        said = "a clock offset or an output latency"
+    other = cause.get("or_read_as") or []
+    if other:
+        said += (" (or as " + " and ".join(other) + ": an equally good explanation, see "
+                 "alternative)")
+    return said
 
 
 def time_offset(run: Run, corr_time_s: float) -> dict | None:

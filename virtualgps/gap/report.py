@@ -333,6 +333,9 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
         "<h2>Effects, ranked by held-out gap</h2>",
         _table(_effect_rows(report), ["effect", "added", "params", "held-out gap before",
                                       "after", "chosen in outer groups", "notes"]),
+        *([f"<p><b>An equally good explanation:</b> "
+           f"{html.escape(report['alternative']['what'])}.</p>"]
+          if report.get("alternative") else []),
         *_tracking_section(report),
         "<h2>Located gaps, by metric</h2>",
         f"<p>A row is a located gap when the real value leaves the band the profile's "

@@ -29,8 +29,10 @@ around the points their folds chose, on top of the effects added so far; one who
 into an end of that cut is tried again on its whole grid (:func:`pulled_past_cut`), and the fit
 of an added one extends a cut axis into its whole grid first. Where the first round's
 runner-up, a competing explanation, is never added, a second search starts from it, kept where
-it ends clearly lower (by what adding an effect needs). At the end an added effect the others
-make redundant (the held-out gap no higher without it) is taken out again.
+it ends clearly lower (by what adding an effect needs); where neither ends clearly lower, the
+report names the other as an equally good explanation (:func:`settle_paths`). At the end an
+added effect the others make redundant (the held-out gap no higher without it) is taken out
+again.
 
 Selections are generators: they yield the (table, seed set, units) they need next, and a driver
 (:func:`drive`) runs several side by side, each going on as soon as its own request is
@@ -488,7 +490,8 @@ class Selection:
     tracking : per-PRN tracking disagreement on held-out units, before and after
     removed : added effects taken out again, the others making them redundant
     paths : where a second search started from the first round's runner-up: each search's
-        first effect, effects and held-out gap after, and which was kept
+        first effect, effects and held-out gap after, which was kept, and whether the other
+        is a tie (:func:`settle_paths`)
     """
 
     steps: list[dict]
@@ -597,6 +600,44 @@ def _runner_up(first_round: tuple[list[Tried], dict], added: list[str], before: 
     return None
 
 
+def settle_paths(paths: list[dict]) -> int:
+    """Which of two searches' ends is kept: the second (from the first round's runner-up)
+    where its held-out gap is clearly lower, by what adding an effect needs (see
+    :func:`acceptable`), else the first. Where neither is clearly lower and they end with
+    different effects, the other is marked ``tie``: the data do not decide between the two
+    explanations, and the report says so.
+
+    paths : the two searches, each {"first", "effects", "gap_after"}; marked in place
+    (``kept``, ``tie``). Returns the kept one's index.
+    """
+    a, b = paths[0]["gap_after"], paths[1]["gap_after"]
+    margin = max(2 * MIN_GAIN_ABS, MIN_GAIN_REL * a)
+    kept = 1 if a - b > margin else 0
+    paths[kept]["kept"] = True
+    other = paths[1 - kept]
+    if (abs(a - b) <= margin
+            and set(other["effects"]) != set(paths[kept]["effects"])):
+        other["tie"] = True
+    return kept
+
+
+def alternative(paths: list[dict]) -> dict | None:
+    """``report.json``'s ``alternative``: the search that ended about as low as the kept one
+    with other effects (marked ``tie`` by :func:`settle_paths`), said for people; None
+    without one."""
+    tie = next((p for p in paths if p.get("tie")), None)
+    kept = next((p for p in paths if p.get("kept")), None)
+    if tie is None or kept is None:
+        return None
+    return {"effects": tie["effects"], "gap_after": tie["gap_after"],
+            "chosen": kept["effects"], "chosen_gap_after": kept["gap_after"],
+            "what": f"{', '.join(tie['effects'])} explain the logs about as well as the effects "
+                    f"added ({', '.join(kept['effects'])}): held-out gap "
+                    f"{tie['gap_after']:.3f} against {kept['gap_after']:.3f}, closer than "
+                    f"adding an effect needs; the data do not decide between {kept['first']} "
+                    f"and {tie['first']}"}
+
+
 def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
            candidates: Callable[[dict], tuple[list[fx.Candidate], dict[str, str]]],
            k_folds: int, full: bool = False) -> Generator[Request, None, Selection]:
@@ -639,12 +680,8 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
                   "gap_after": current},
                  {"first": alt.cand.name, "effects": [s["name"] for s in steps2],
                   "gap_after": current2}]
-        # (kept as an effect is added: by a clear held-out gain, see acceptable)
-        if current - current2 > max(2 * MIN_GAIN_ABS, MIN_GAIN_REL * current):
+        if settle_paths(paths) == 1:
             steps, rounds, table, current = steps2, rounds2, table2, current2
-            paths[1]["kept"] = True
-        else:
-            paths[0]["kept"] = True
     fold_tables = [table] * n_f
     sel = Selection(steps, ranking, skipped, baseline, current, table, fold_tables, folds,
                     rounds, paths=paths)

@@ -406,6 +406,7 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "scenario": trial.scenario, "params": injected, "ranked": ranked,
         "accepted": accepted, "ranked_first": ranked[0],
         "added_first": accepted[0] if accepted else NOTHING, "success": success,
+        "alternative": (report.get("alternative") or {}).get("effects"),
         "recovered": params, "recovered_interval": intervals,
         "covered": covered(injected, intervals, grids),
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],

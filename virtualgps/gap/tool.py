@@ -331,6 +331,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
     """The ``report.json`` content."""
     share = _outer_share(choice)
     effects: list[dict] = []
+    alt = None
     if choice is not None:
         full = choice.full
         names = {s["name"] for s in full.steps}
@@ -345,9 +346,13 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
             if e["name"] == "latency" and any(c["name"] == "time_offset" for c in causes):
                 e["alias"] = ("a log-vs-truth clock offset of the same size moves the fixes "
                               "alike (see causes: time_offset)")
+        alt = sel.alternative(full.paths)
         for c in causes:
             if c["name"] == "time_offset":
                 c["read_as"] = [s["name"] for s in full.steps if s["name"] in cz.LAG_EFFECTS]
+                other = [n for n in alt["effects"] if n in cz.LAG_EFFECTS] if alt else []
+                if alt and other != c["read_as"]:
+                    c["or_read_as"] = other
     outer = choice.outer_summary() if choice is not None else None
     whole = list(range(len(design.units), len(design.all_units())))
     if choice is not None and outer["groups"]:
@@ -388,6 +393,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
         "outer": ({**outer, "folds": choice.outer} if choice is not None else None),
         "selection_rounds": choice.full.rounds if choice is not None else [],
         "search_paths": choice.full.paths if choice is not None else [],
+        "alternative": alt,
         "tracking_disagreement": (choice.full.tracking if choice is not None else {}) | {
             "definition": "sum over PRNs of |real - simulated tracked satellite-epochs| / "
                           "compared satellite-epochs, pooled over the held-out units, each "
@@ -652,6 +658,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
         lines.append(f"  effect {e['name']} ({mark}){tie}: held-out gap "
                      f"{e['gap_before']:.3f} -> {e['gap_after']:.3f}"
                      + (f"; {params}" if params else ""))
+    if report.get("alternative"):
+        lines.append(f"  alternative: {report['alternative']['what']}")
     left = list(dict.fromkeys(u["metric"] for u in report.get("unexplained", [])))
     if left:
         lines.append("  unexplained (outside the final ensemble): " + ", ".join(left))
