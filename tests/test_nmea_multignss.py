@@ -221,7 +221,7 @@ def test_a_wrong_system_names_the_key(systems_toml, message):
 def test_gpsd_reports_each_systems_satellites_with_its_gnssid(tmp_path):
     import os
 
-    from test_e2e import GPSD, Daemon, sky_msgs, tpv3, watch_gpsd
+    from test_e2e import GPSD, Daemon, sky_after_fix, tpv3, watch_gpsd
 
     from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
 
@@ -235,19 +235,20 @@ def test_gpsd_reports_each_systems_satellites_with_its_gnssid(tmp_path):
     daemon = Daemon(tmp_path, "--profile", str(prof), "--scene", "none", "--origin",
                     "52.14,11.64,100", "--poses", "demo", *sets)
     try:
-        messages = watch_gpsd(tmp_path, daemon.link, 60.0,
-                              lambda m: len(tpv3(m)) >= 3 and len(sky_msgs(m)) >= 3,
-                              probe=False)
+        messages = watch_gpsd(
+            tmp_path, daemon.link, 60.0,
+            lambda m: len(tpv3(m)) >= 3 and sky_after_fix(m, {0, 2, 6}) is not None,
+            probe=False)
     finally:
         code, err = daemon.stop()
     assert code == 0, err
     assert len(tpv3(messages)) >= 3, f"gpsd reported no 3D fix; daemon stderr: {err}"
-    sats = sky_msgs(messages)[-1]["satellites"]
-    by = {}
-    for s in sats:
-        by.setdefault(s["gnssid"], []).append(s)
+    sky = sky_after_fix(messages, {0, 2, 6})
     # u-blox gnssId numbering, as gpsd reports it: GPS 0, Galileo 2, GLONASS 6
-    assert set(by) == {0, 2, 6}
+    assert sky is not None, "no SKY listing GPS, Galileo and GLONASS after the fix"
+    by = {}
+    for s in sky["satellites"]:
+        by.setdefault(s["gnssid"], []).append(s)
     assert all(1 <= s["PRN"] <= 32 and s["svid"] == s["PRN"] for s in by[0])
     assert all(65 <= s["PRN"] <= 96 and s["svid"] == s["PRN"] - 64 for s in by[6])
     assert all(1 <= s["svid"] <= 36 and s["PRN"] == 300 + s["svid"] for s in by[2])

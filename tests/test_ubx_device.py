@@ -302,7 +302,7 @@ def test_gpsd_identifies_the_u_blox_configures_it_and_reports_every_system(
         tmp_path, profile, hw, systems):
     """gpsd (probing allowed) takes the device for a u-blox with its MON-VER, switches it to
     UBX, and reports 3D fixes and every system's satellites by u-blox gnssId."""
-    from test_e2e import GPSD, sky_msgs, tpv3, watch_gpsd
+    from test_e2e import GPSD, sky_after_fix, tpv3, watch_gpsd
 
     if GPSD is None and not os.environ.get("CI"):
         pytest.skip("gpsd not installed")
@@ -314,7 +314,8 @@ def test_gpsd_identifies_the_u_blox_configures_it_and_reports_every_system(
     daemon = _daemon(tmp_path, profile)
     try:
         messages = watch_gpsd(tmp_path, daemon.link, 60.0,
-                              lambda m: ublox(m) and len(tpv3(m)) >= 3 and len(sky_msgs(m)) >= 3)
+                              lambda m: ublox(m) and len(tpv3(m)) >= 3
+                              and sky_after_fix(m, systems) is not None)
     finally:
         code, err = daemon.stop()
     assert code == 0, err
@@ -325,6 +326,7 @@ def test_gpsd_identifies_the_u_blox_configures_it_and_reports_every_system(
     assert "u-blox command link" in err and "NAV-PVT/1" in err  # gpsd configured it
     if profile == "ublox-m9n":
         assert "BeiDou satellites left out (no beidou TLE set is at hand" in err
-    sats = sky_msgs(messages)[-1]["satellites"]
-    assert {s["gnssid"] for s in sats} == systems
+    sky = sky_after_fix(messages, systems)
+    assert sky is not None, f"no SKY of {systems} after the fix"
+    sats = sky["satellites"]
     assert any(s["used"] for s in sats if s["gnssid"] == 6)
