@@ -188,6 +188,51 @@ def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     assert daemon.apply_link_settings(rx3, off) is rx3  # nothing to change
 
 
+_HANDLER_INSIDE_SET = """
+import os, signal, threading
+from virtualgps.run import daemon
+
+stop = daemon.StopEvent()
+signal.signal(signal.SIGUSR1, lambda *_: stop.set())
+raised = []
+
+def raise_once():
+    if not raised:
+        raised.append(1)
+        signal.raise_signal(signal.SIGUSR1)  # (its handler runs in the call below)
+
+# The second signal's handler runs while the first handler's set is under way: where set holds
+# a lock (threading.Event's Condition, while it notifies), or as it wakes the descriptor.
+notify_all, eventfd_write = threading.Condition.notify_all, os.eventfd_write
+
+def notify_then(self, *a):
+    raise_once()
+    notify_all(self, *a)
+
+def write_then(fd, value):
+    raise_once()
+    eventfd_write(fd, value)
+
+threading.Condition.notify_all = notify_then
+os.eventfd_write = write_then
+stop.set()
+print("stopped", stop.is_set(), stop.wait(0.01), len(raised))
+"""
+
+
+def test_a_signal_inside_another_signals_stop_does_not_hang():
+    """``timeout -s INT`` sends SIGINT to the daemon, then to its process group: the second
+    handler may run inside the first's ``set``. The daemon hung for good there (SIGTERM too)
+    while StopEvent was a threading.Event, whose ``set`` holds a lock."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _HANDLER_INSIDE_SET], capture_output=True,
+                       text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["stopped", "True", "True", "1"], r.stdout
+
+
 def test_stop_event_wakes_a_select_and_never_writes_after_close():
     stop = daemon.StopEvent()
     fd = stop.fileno()

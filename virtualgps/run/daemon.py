@@ -521,22 +521,47 @@ def tick(
     return out
 
 
-class StopEvent(threading.Event):
-    """A :class:`threading.Event` with a descriptor that turns readable once it is set, so a
-    loop waiting in ``select``/``epoll`` wakes at once (a signal handler's ``set`` would
-    otherwise wait for the loop's next timeout: an idle 1 Hz daemon then had to wake ten
-    times a second just to look at the flag)."""
+class StopEvent:
+    """The flag the signal handlers set to stop the live loop, with a descriptor that turns
+    readable once it is set, so a loop waiting in ``select``/``epoll`` wakes at once (a
+    signal handler's ``set`` would otherwise wait for the loop's next timeout: an idle 1 Hz
+    daemon then had to wake ten times a second just to look at the flag).
+
+    :meth:`set` takes no lock, so a handler may run inside another's ``set``. It was a
+    :class:`threading.Event`, whose ``set`` holds a lock: ``timeout -s INT`` sends SIGINT to
+    the daemon and then to its process group, the second handler ran while the first held
+    that lock, and the daemon hung for good (SIGTERM too; found with the README's demo in a
+    script, 2026-11-28)."""
 
     def __init__(self) -> None:
-        super().__init__()
+        self._flag = False
         self._fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
 
     def set(self) -> None:
-        super().set()
+        """Set the flag and wake the descriptor's waiters (safe in a signal handler)."""
+        self._flag = True
         fd = self._fd
         if fd >= 0:  # (after close the number may belong to another file: never write to it)
             with contextlib.suppress(OSError):
                 os.eventfd_write(fd, 1)
+
+    def is_set(self) -> bool:
+        """Whether :meth:`set` was called."""
+        return self._flag
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait until set or ``timeout_s`` seconds have passed (None: for ever); return
+        :meth:`is_set`."""
+        end = None if timeout_s is None else time.monotonic() + timeout_s
+        while not self._flag:
+            left = None if end is None else end - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            if self._fd >= 0:
+                select.select([self._fd], [], [], left)
+            else:
+                time.sleep(0.05 if left is None else min(0.05, left))
+        return self._flag
 
     def fileno(self) -> int:
         """Return the descriptor, readable once set."""
@@ -588,7 +613,7 @@ def run_daemon(
     fmt: nmea.NmeaFormat,
     clock: SimClock,
     rng: np.random.Generator,
-    stop: threading.Event,
+    stop: threading.Event | StopEvent,
     on_epoch: Callable[[Fixes, DaemonStats], None] | None = None,
     max_epochs: int | None = None,
     link: mtk.MtkLink | UbxLink | None | str = "profile",
@@ -744,7 +769,7 @@ def run_receivers(
     members: list[LiveReceiver],
     provider: PoseProvider,
     clock: SimClock,
-    stop: threading.Event,
+    stop: threading.Event | StopEvent,
     on_epoch: Callable[[LiveReceiver, Fixes, int], None] | None = None,
     max_epochs: int | None = None,
     waiter=None,
