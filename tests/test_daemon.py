@@ -216,7 +216,7 @@ def write_then(fd, value):
 threading.Condition.notify_all = notify_then
 os.eventfd_write = write_then
 stop.set()
-print("stopped", stop.is_set(), stop.wait(0.01), len(raised))
+print("stopped", stop.is_set(), len(raised))
 """
 
 
@@ -230,7 +230,7 @@ def test_a_signal_inside_another_signals_stop_does_not_hang():
     r = subprocess.run([sys.executable, "-c", _HANDLER_INSIDE_SET], capture_output=True,
                        text=True, timeout=30)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.split() == ["stopped", "True", "True", "1"], r.stdout
+    assert r.stdout.split() == ["stopped", "True", "1"], r.stdout
 
 
 def test_stop_event_wakes_a_select_and_never_writes_after_close():

@@ -549,20 +549,6 @@ class StopEvent:
         """Whether :meth:`set` was called."""
         return self._flag
 
-    def wait(self, timeout_s: float | None = None) -> bool:
-        """Wait until set or ``timeout_s`` seconds have passed (None: for ever); return
-        :meth:`is_set`."""
-        end = None if timeout_s is None else time.monotonic() + timeout_s
-        while not self._flag:
-            left = None if end is None else end - time.monotonic()
-            if left is not None and left <= 0:
-                break
-            if self._fd >= 0:
-                select.select([self._fd], [], [], left)
-            else:
-                time.sleep(0.05 if left is None else min(0.05, left))
-        return self._flag
-
     def fileno(self) -> int:
         """Return the descriptor, readable once set."""
         return self._fd
