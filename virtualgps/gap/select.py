@@ -631,7 +631,9 @@ def alternative(paths: list[dict]) -> dict | None:
         return None
     return {"effects": tie["effects"], "gap_after": tie["gap_after"],
             "chosen": kept["effects"], "chosen_gap_after": kept["gap_after"],
-            "what": f"{', '.join(tie['effects'])} explain the logs about as well as the effects "
+            "what": f"{', '.join(tie['effects'])} "
+                    f"{'explains' if len(tie['effects']) == 1 else 'explain'} the logs about "
+                    f"as well as the effects "
                     f"added ({', '.join(kept['effects'])}): held-out gap "
                     f"{tie['gap_after']:.3f} against {kept['gap_after']:.3f}, closer than "
                     f"adding an effect needs; the data do not decide between {kept['first']} "
