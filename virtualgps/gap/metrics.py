@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from virtualgps.geodesy import ecef_to_enu, geodetic_to_ecef, geoid_sep_m
+from virtualgps.geodesy import ecef_to_enu_matrix, geodetic_to_ecef, geoid_sep_m
 
 # 1/e: the autocorrelation level that defines the correlation time of a first-order
 # Gauss-Markov process (rho(tau) = exp(-|tau| / tau_c), e.g. Brown & Hwang, "Introduction to
@@ -50,20 +50,25 @@ def errors_enu_m(
 
     Parameters
     ----------
-    lat_deg, lon_deg : (n,) float, degrees, the fixes; NaN without a fix
-    alt_hae_m : (n,) float, metres (ellipsoidal, or any datum shared with the reference)
-    ref_lat_deg, ref_lon_deg, ref_alt_hae_m : (n,) or scalar float, the reference
+    lat_deg, lon_deg : (...) float, degrees, the fixes (e.g. (n,), or (s, n) for s seeds); NaN
+        without a fix
+    alt_hae_m : (...) float, metres (ellipsoidal, or any datum shared with the reference)
+    ref_lat_deg, ref_lon_deg, ref_alt_hae_m : float, degrees and metres, the reference, of
+        any shape that broadcasts against the fixes' ((n,): one per epoch; (s, 1): one per seed)
 
     Returns
     -------
-    err_enu_m : (n, 3) float, metres, ENU at the reference: fix minus reference
+    err_enu_m : (..., 3) float, metres, ENU at the reference: fix minus reference
     """
-    lat, lon, alt, rlat, rlon, ralt = np.broadcast_arrays(
-        *(np.asarray(a, dtype=float) for a in (lat_deg, lon_deg, alt_hae_m, ref_lat_deg,
-                                                ref_lon_deg, ref_alt_hae_m))
-    )  # fmt: skip
+    lat, lon, alt = (np.asarray(a, dtype=float) for a in (lat_deg, lon_deg, alt_hae_m))
+    rlat, rlon, ralt = (np.asarray(a, dtype=float) for a in (ref_lat_deg, ref_lon_deg,
+                                                             ref_alt_hae_m))
     no_alt = ~np.isfinite(alt)
-    enu = ecef_to_enu(geodetic_to_ecef(lat, lon, np.where(no_alt, ralt, alt)), rlat, rlon, ralt)
+    fix_ecef = geodetic_to_ecef(lat, lon, np.where(no_alt, ralt, alt))
+    # the reference's frame on its own shape (one truth for every seed's fixes: the rotation
+    # is made once per epoch, not once per seed and epoch)
+    d = fix_ecef - geodetic_to_ecef(rlat, rlon, ralt)
+    enu = (ecef_to_enu_matrix(rlat, rlon) @ d[..., None])[..., 0]
     enu[..., 2] = np.where(no_alt, np.nan, enu[..., 2])
     return enu
 

@@ -40,7 +40,6 @@ from virtualgps.gap.metrics import (
     autocorrelation,
     changes_per_minute,
     errors_enu_m,
-    median_position,
     to_regular_grid,
 )
 from virtualgps.gap.motion import delay_smoothing_s, epoch_step_s, lag_s
@@ -182,17 +181,16 @@ def quantize(obs: Obs, quantum_min: float, hdop_step: float = 0.0, alt_step_m: f
 def errors_enu(view: RunView, obs: Obs) -> np.ndarray:
     """(s, n, 3) ENU error of each fix, metres: about the truth, or about the seed's (the
     log's) own median fix for a static run at an unknown point."""
-    s = obs.lat_deg.shape[0]
-    out = np.empty(obs.lat_deg.shape + (3,))
-    for i in range(s):
-        lat, lon, alt = obs.lat_deg[i], obs.lon_deg[i], obs.alt_hae_m[i]
-        if view.reference == "truth":
-            ref = (view.truth_lat_deg, view.truth_lon_deg, view.truth_alt_hae_m)
-        else:
-            ok = obs.fixed[i]
-            ref = median_position(lat[ok], lon[ok], alt[ok]) if ok.any() else (0.0, 0.0, 0.0)
-        out[i] = errors_enu_m(lat, lon, alt, *ref)
-    out[~obs.fixed] = np.nan
+    fixed = obs.fixed
+    if view.reference == "truth":
+        ref = (view.truth_lat_deg, view.truth_lon_deg, view.truth_alt_hae_m)
+    else:
+        # each seed's component-wise median fix (metrics.median_position, for all rows at
+        # once); a seed without a fix is measured from (0, 0, 0): its errors are all NaN
+        ref = tuple(np.where(fixed.any(axis=1), row_quantile(np.where(fixed, x, np.nan), 0.5),
+                             0.0)[:, None] for x in (obs.lat_deg, obs.lon_deg, obs.alt_hae_m))
+    out = errors_enu_m(obs.lat_deg, obs.lon_deg, obs.alt_hae_m, *ref)
+    out[~fixed] = np.nan
     return out
 
 
@@ -211,19 +209,21 @@ def row_quantile(x: np.ndarray, q: float) -> np.ndarray:
     return np.where(n > 0, v, np.nan)
 
 
-def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top: float
-                    ) -> np.ndarray:
+def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top: float,
+                    span: slice = slice(None), cols: np.ndarray | None = None) -> np.ndarray:
     """Quantile ``q`` of each row's masked values of (s, ...) data in [0, top], to ``step``
     (a histogram per row: ensembles of C/N0 or elevations hold ~10^5 values a seed).
 
-    x : data broadcastable to ``mask`` (e.g. (n, k) elevations for (s, n, k) masks)
-    mask : (s, ...) bool, the values that count
+    x : (..., n, k) data (e.g. (s, n, k) C/N0, or (n, k) elevations for every seed)
+    mask : (s, n', k') bool, the values that count, over rows ``span`` and columns ``cols``
+        ((k,) bool; None: all) of ``x``'s last two axes (their bins are made once per ``x``)
 
     Returns (s,) float, NaN for rows without a value (the lower of the two middle values'
     bins for an even count, like an order statistic, not interpolated)."""
     s = mask.shape[0]
     nb = int(round(top / step)) + 1
-    b = np.broadcast_to(_bins(x, step, nb), mask.shape)
+    b = _bins(x, step, nb)[..., span, :]
+    b = np.broadcast_to(b if cols is None else b[..., cols], mask.shape)
     if mask.ndim == 3:  # only the satellites the mask holds (one PRN, a sky sector)
         cols = mask.any(axis=(0, 1))
         if not cols.all():
@@ -254,7 +254,8 @@ def _bins(x: np.ndarray, step: float, nb: int) -> np.ndarray:
     for arr, key, b in kept:
         if arr is x and key == (step, nb):
             return b
-    b = np.clip(np.rint(np.nan_to_num(np.asarray(x, dtype=float)) / step), 0, nb - 1)
+    # (fmax first: NaN goes to 0, as nan_to_num then clip did, in one pass less)
+    b = np.fmin(np.fmax(np.rint(np.asarray(x, dtype=float) / step), 0.0), nb - 1)
     b = b.astype(np.int32)
     kept.insert(0, (x, (step, nb), b))
     del kept[_BINS_KEPT:]
@@ -304,14 +305,19 @@ def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) 
     return np.where(w[None, :] > 0, frac, np.nan), w
 
 
-def _compared(view: RunView, epochs: np.ndarray, memo: dict | None) -> np.ndarray:
-    """(n, k) bool, a segment's compared satellite-epochs (kept in ``memo`` where given)."""
-    m = memo.get("compared") if memo else None
-    if m is None:
+def _compared(view: RunView, epochs: np.ndarray, memo: dict | None
+              ) -> tuple[slice, np.ndarray]:
+    """A segment's compared satellite-epochs: the rows of the run that hold them and the
+    (n', k) bool mask over those rows (kept in ``memo`` where given)."""
+    hit = memo.get("compared") if memo else None
+    if hit is None:
         m = view.sat_ok & (epochs & view.valid)[:, None]
+        rows = np.flatnonzero(m.any(axis=1))
+        span = slice(rows[0], rows[-1] + 1) if rows.size else slice(0, 0)
+        hit = (span, m[span])
         if memo is not None:
-            memo["compared"] = m
-    return m
+            memo["compared"] = hit
+    return hit
 
 
 def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None = None
@@ -324,17 +330,15 @@ def prn_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None
     per_seed = np.zeros((sims.tracked.shape[0], view.prn.size))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
         return np.zeros((2, view.prn.size)), per_seed
-    hit = memo.get("prn") if memo else None
-    if hit is None:
-        m = _compared(view, epochs, memo)
+    span, m = _compared(view, epochs, memo)
+    fixed = memo.get("prn") if memo else None
+    if fixed is None:
         fixed = np.zeros((2, view.prn.size))
         fixed[0] = m.sum(axis=0)
-        fixed[1] = (view.real.tracked[0] & m).sum(axis=0)
-        hit = (m, fixed)
+        fixed[1] = (view.real.tracked[0, span] & m).sum(axis=0)
         if memo is not None:
-            memo["prn"] = hit
-    m, fixed = hit
-    per_seed[:] = (sims.tracked & m[None]).sum(axis=1)
+            memo["prn"] = fixed
+    per_seed[:] = (sims.tracked[:, span] & m[None]).sum(axis=1)
     return fixed.copy(), per_seed
 
 
@@ -356,24 +360,25 @@ def bin_tracking(view: RunView, sims: Obs, epochs: np.ndarray, memo: dict | None
     per_seed = np.zeros((2, s, nb))
     if not (view.assess.get("gsv") and view.assess.get("cn0")):
         return np.zeros((3, nb)), per_seed
+    span, m = _compared(view, epochs, memo)
     hit = memo.get("bins") if memo else None
     if hit is None:
-        m = _compared(view, epochs, memo)
-        r = np.clip((np.nan_to_num(view.el_deg) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
-        c = np.clip((np.nan_to_num(view.az_deg) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0,
-                    n_az - 1)
+        el, az = view.el_deg[span], view.az_deg[span]
+        r = np.clip((np.nan_to_num(el) // SKY_BIN_EL_DEG).astype(int), 0, n_el - 1)
+        c = np.clip((np.nan_to_num(az) % 360.0 // SKY_BIN_AZ_DEG).astype(int), 0, n_az - 1)
         b = (r * n_az + c)[m]
         fixed = np.zeros((3, nb))
-        real_cn0 = np.where(view.real.tracked[0], view.real.cn0_dbhz[0], 0.0)[m]
-        for row, w in enumerate((None, view.real.tracked[0][m], np.nan_to_num(real_cn0))):
+        tr, cn0 = view.real.tracked[0, span][m], view.real.cn0_dbhz[0, span][m]
+        for row, w in enumerate((None, tr, np.nan_to_num(np.where(tr, cn0, 0.0)))):
             fixed[row] = np.bincount(b, weights=w, minlength=nb)
-        hit = (m, b, fixed)
+        hit = (b, fixed)
         if memo is not None:
             memo["bins"] = hit
-    m, b, fixed = hit
+    b, fixed = hit
     seed_b = (np.arange(s)[:, None] * nb + b[None, :]).ravel()  # one bincount for all seeds
-    sim_cn0 = np.nan_to_num(np.where(sims.tracked, sims.cn0_dbhz, 0.0)[:, m])
-    for row, w in enumerate((sims.tracked[:, m].astype(float), sim_cn0)):
+    tr = sims.tracked[:, span][:, m]
+    sim_cn0 = np.nan_to_num(np.where(tr, sims.cn0_dbhz[:, span][:, m], 0.0))
+    for row, w in enumerate((tr.astype(float), sim_cn0)):
         per_seed[row] = np.bincount(seed_b, weights=w.ravel(), minlength=s * nb).reshape(s, nb)
     return fixed.copy(), per_seed
 
@@ -467,17 +472,18 @@ class _Segment:
     starts: bool  # the segment holds the power-on
     moving: np.ndarray  # (n,) bool, epochs moving fast enough for lag and smoothing
     steady: np.ndarray  # (n - 1,) bool, no gap between two epochs
-    sat_mask: np.ndarray | None  # (n, k') the compared satellite-epochs (None: no GSV)
+    # The compared satellite-epochs lie in rows ``span`` and columns ``cols`` of the run's
+    # (n, k) arrays: a time block's or a PRN's statistics read only those (a job scores some
+    # ten blocks of a run, each of which was read whole before: a quarter of its job time).
+    sat_mask: np.ndarray | None  # (n', k') the compared satellite-epochs (None: no GSV)
+    span: slice  # the rows n' of the epochs that hold them
     cols: np.ndarray | None  # (k,) bool, the satellites kept (None: all k)
-    el_deg: np.ndarray | None  # (n, k') their elevations
     gsa: bool  # used_el_p05_deg is assessed
 
-    def sats(self, o: Obs) -> Obs:
-        """A side's output over the satellites kept (what :func:`_side_stats` takes)."""
-        if self.cols is None:
-            return o
-        return replace(o, tracked=o.tracked[..., self.cols], cn0_dbhz=o.cn0_dbhz[..., self.cols],
-                       used=o.used[..., self.cols])
+    def sats(self, x: np.ndarray) -> np.ndarray:
+        """A side's (s, n, k) array over the compared rows and satellites, (s, n', k')."""
+        x = x[:, self.span]
+        return x if self.cols is None else x[..., self.cols]
 
 
 def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool]
@@ -535,15 +541,15 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
         if g.moving.sum() >= 30 and wanted("lag_s"):
             out["lag_s"] = lag_s(e, view.vel_enu_mps, g.moving)
     if g.sat_mask is not None and view.assess.get("cn0"):
+        tracked = g.sats(o.tracked) & g.sat_mask[None]
         if wanted("tracked_share"):
-            out["tracked_share"] = ((o.tracked & g.sat_mask[None]).sum(axis=(1, 2))
-                                    / g.sat_mask.sum())
+            out["tracked_share"] = tracked.sum(axis=(1, 2)) / g.sat_mask.sum()
         if wanted("cn0_median_dbhz"):  # (GSV SNR: whole dB-Hz)
-            out["cn0_median_dbhz"] = binned_quantile(o.cn0_dbhz, o.tracked & g.sat_mask[None],
-                                                     0.5, 1.0, 99.0)
+            out["cn0_median_dbhz"] = binned_quantile(o.cn0_dbhz, tracked, 0.5, 1.0, 99.0,
+                                                     g.span, g.cols)
     if g.sat_mask is not None and g.gsa and wanted("used_el_p05_deg"):
-        out["used_el_p05_deg"] = binned_quantile(g.el_deg, o.used & g.sat_mask[None], 0.05,
-                                                 0.1, 90.0)
+        out["used_el_p05_deg"] = binned_quantile(view.el_deg, g.sats(o.used) & g.sat_mask[None],
+                                                 0.05, 0.1, 90.0, g.span, g.cols)
     return out
 
 
@@ -591,21 +597,23 @@ def segment_stats(
         cols = sat_mask.any(axis=0) if has_sats else None
         if cols is not None and 2 * cols.sum() > cols.size:
             cols = None
+        rows = np.flatnonzero(sat_mask.any(axis=1)) if has_sats else None
+        span = slice(rows[0], rows[-1] + 1) if has_sats else slice(None)
+        if has_sats:
+            sat_mask = sat_mask[span] if cols is None else sat_mask[span][:, cols]
         t = view.t_unix_s
         g = _Segment(
             view, epochs, position=sats is None and bool(epochs.any()),
             starts=bool(view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S),
             moving=epochs & (view.speed_mps >= MOVING_MPS),
             steady=np.diff(t) < 1.5 * epoch_step_s(t),  # (no gap between the two)
-            sat_mask=(sat_mask[:, cols] if cols is not None else sat_mask) if has_sats else None,
-            cols=cols, el_deg=(view.el_deg[:, cols] if cols is not None else view.el_deg)
-            if has_sats else None, gsa=bool(view.assess.get("gsa")) and sats is None)
+            sat_mask=sat_mask if has_sats else None, span=span, cols=cols,
+            gsa=bool(view.assess.get("gsa")) and sats is None)
     real_rows = memo.get("real") if memo else None
     if real_rows is None:
-        real_rows = _side_stats(g, g.sats(view.real), err_real, wanted)
+        real_rows = _side_stats(g, view.real, err_real, wanted)
     have = {m for m, v in real_rows.items() if np.isfinite(v[0])}
-    sims_k = g.sats(sims)
-    sim_rows = _side_stats(g, sims_k, err_sim, lambda m: m in have)
+    sim_rows = _side_stats(g, sims, err_sim, lambda m: m in have)
     smooth = g.position and g.moving.sum() >= 30 and wanted("smoothing_s")
     if smooth:
         fresh = "smoothing_s" not in real_rows
@@ -634,8 +642,8 @@ def segment_stats(
                 sim[name] = eq4(lat_s, lon_s, np.roll(lat_s, 1, 0), np.roll(lon_s, 1, 0))
         elif (name == "tracked_agreement" and g.sat_mask is not None and view.assess.get("cn0")
               and wanted(name)):
-            fr, w = tracked_fractions(view, g.sats(view.real).tracked, g.sat_mask)
-            fs, _ = tracked_fractions(view, sims_k.tracked, g.sat_mask)
+            fr, w = tracked_fractions(view, g.sats(view.real.tracked), g.sat_mask)
+            fs, _ = tracked_fractions(view, g.sats(sims.tracked), g.sat_mask)
             rp = 1.0 - _disagreement(np.broadcast_to(fr, fs.shape), fs, w)
             if np.isfinite(rp).any():
                 real[name] = float(np.nanmedian(rp))
