@@ -101,29 +101,39 @@ def dop(los_enu: np.ndarray, used: np.ndarray, clocks: np.ndarray | None = None
     hdop, vdop, pdop : (...) float; NaN with fewer than 2 + (systems used) satellites or a
         singular geometry
     """
-    w = used.astype(float)[..., None]
-    los = np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num is slow on tiny arrays)
-    clk, idle = errors.clock_states(used, clocks)
-    g = np.concatenate([-los, clk], axis=-1)
-    normal = np.swapaxes(g * w, -1, -2) @ g  # G^T W G (a matrix product: ~6x einsum's speed)
+    # Q's position block in closed form, (A - B C^-1 B^T)^-1 (the Schur complement of the
+    # clocks' block C), its diagonal by cofactors: each satellite belongs to one system, so C
+    # is diagonal (the used satellites per clock; a clock none determines drops out). Four
+    # times the speed of stacked 4 x 4 products and inverses over an ensemble's epochs (the
+    # benchmark hour's jobs spent 14 % of their time in them); equal to 1e-15 relative but at
+    # geometries with HDOP in the thousands (1e-8 there, no further from the exact value).
+    # The sums over satellites are matrix products, one per epoch as before: an epoch's DOP
+    # does not depend on the batch it is computed in, to the last bit.
+    w = used.astype(float)
+    u = np.where(np.isnan(los_enu), 0.0, los_enu)  # (nan_to_num is slow on tiny arrays)
+    uw_t = np.swapaxes(u * w[..., None], -1, -2)  # (..., 3, n_sat); G's rows are -u: signs
+    a = uw_t @ u  # cancel in pairs
+    cols = np.ones((used.shape[-1], 1)) if clocks is None else np.asarray(clocks, dtype=float)
+    b = uw_t @ cols  # (..., 3, k_clocks)
+    c = w @ cols  # (..., k_clocks) used satellites per clock
     n_used = used.sum(axis=-1)
-    n_clocks = 1
-    if idle is not None:
-        c = 3 + np.arange(idle.shape[-1])
-        normal[..., c, c] += idle
-        n_clocks = (~idle).sum(axis=-1)
-    normal[..., 2, 2] += n_used == 2 + n_clocks  # the held height's row [0, 0, 1, 0] (2D fix)
+    n_clocks = (c > 0).sum(axis=-1)
+    with np.errstate(divide="ignore"):
+        inv_c = np.where(c > 0, 1.0 / c, 0.0)
+
+    def m(i: int, j: int) -> np.ndarray:
+        return a[..., i, j] - (b[..., i, :] * b[..., j, :] * inv_c).sum(axis=-1)
+
+    m00, m01, m02, m11, m12 = m(0, 0), m(0, 1), m(0, 2), m(1, 1), m(1, 2)
+    m22 = m(2, 2) + (n_used == 2 + n_clocks)  # the held height's row [0, 0, 1, 0] (2D fix)
+    c00, c11, c22 = m11 * m22 - m12 * m12, m00 * m22 - m02 * m02, m00 * m11 - m01 * m01
+    det = m00 * c00 - m01 * (m01 * m22 - m12 * m02) + m02 * (m01 * m12 - m11 * m02)
     ok = n_used >= 2 + n_clocks
-    eye = np.eye(g.shape[-1])
-    safe = np.where(ok[..., None, None], normal, eye)
-    try:
-        q = np.linalg.inv(safe)
-    except np.linalg.LinAlgError:  # an exactly singular geometry somewhere: find it
-        ok &= np.abs(np.linalg.det(safe)) > 1e-9
-        q = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        diag = np.stack([c00, c11, c22], axis=-1) / det[..., None]
     # A nearly singular geometry (e.g. every satellite at one elevation: up and clock can't be
-    # told apart) inverts to huge or negative variances; a real one has PDOP < 1e4.
-    diag = np.diagonal(q, axis1=-2, axis2=-1)[..., :3]
+    # told apart) inverts to huge or negative variances (an exactly singular one to inf or
+    # NaN); a real one has PDOP < 1e4.
     ok &= np.all((diag >= 0.0) & (diag < 1e8), axis=-1)
     diag = np.where(ok[..., None], diag, np.nan)
     qe, qn, qu = diag[..., 0], diag[..., 1], diag[..., 2]
