@@ -45,6 +45,7 @@ import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy import special
@@ -149,9 +150,9 @@ def _t_quantile(dof: int, q: float) -> float:
     return float(special.stdtrit(dof, q))
 
 
-@dataclass(frozen=True)
-class Judged:
-    """A real value against its ensemble.
+class Judged(NamedTuple):
+    """A real value against its ensemble (a named tuple: a diagnosis makes some 10^5 of them,
+    most in its workers, and unpickles their results in its main process).
 
     p : two-sided p-value (NaN: too few seeds with a value)
     z : signed normal-equivalent (+: real above the ensemble); 0 inside the floor

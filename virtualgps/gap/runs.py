@@ -85,7 +85,8 @@ def sim_obs(ens: Ensemble, view: RunView | None = None) -> Obs:
         lat_deg=ens.lat_deg, lon_deg=ens.lon_deg, alt_hae_m=ens.alt_hae_m,
         quality=ens.quality.astype(np.int16), hdop=ens.hdop.astype(float),
         sats_used=ens.used.sum(axis=2).astype(float), speed_mps=ens.speed_mps.astype(float),
-        tracked=np.isfinite(ens.cn0_dbhz), cn0_dbhz=ens.cn0_dbhz.astype(float), used=ens.used,
+        # (C/N0 stays float32: the ensemble's largest array, read by bins alone)
+        tracked=np.isfinite(ens.cn0_dbhz), cn0_dbhz=ens.cn0_dbhz, used=ens.used,
     )
     return obs if view is None else quantize(obs, view.quantum_min, view.hdop_step,
                                              view.alt_step_m)

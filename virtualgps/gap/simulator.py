@@ -44,9 +44,11 @@ from virtualgps.gap.where import (
     gap_score,
     judge_scored,
     merge_stats,
+    pack_vectors,
     prn_tracking,
     segment_stats,
     tracking_means,
+    unpack_vectors,
 )
 
 FIT, HELD, OUTER = 0, 1, 2  # seed sets
@@ -72,6 +74,16 @@ class UnitScore:
     def own(self) -> tuple[float, dict[str, float]]:
         """The gap and per-metric distances in the seeds' own spread, with no reference."""
         return gap_score(self.judged)
+
+    def __reduce__(self) -> tuple:
+        # (the seeds' values as one array: see where.pack_vectors)
+        return (_score_unpacked, (self.judged, self.prn, self.bins,
+                                  *pack_vectors(self.seeds or {}), self.seeds is None))
+
+
+def _score_unpacked(judged: dict, prn: np.ndarray | None, bins: np.ndarray | None,
+                    seed_names: Any, seeds: np.ndarray | None, no_seeds: bool) -> UnitScore:
+    return UnitScore(judged, prn, bins, None if no_seeds else unpack_vectors(seed_names, seeds))
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ import math
 import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +60,7 @@ class Obs:
     hdop : (s, n) float; sats_used : (s, n) float, NaN where unknown
     speed_mps : (s, n) float, reported speed
     tracked : (s, n, k) bool, the satellite has an SNR; cn0_dbhz : (s, n, k) float
+        (float32 for an ensemble), dB-Hz, NaN where not tracked
     used : (s, n, k) bool (GSA)
     """
 
@@ -254,8 +256,12 @@ def _bins(x: np.ndarray, step: float, nb: int) -> np.ndarray:
     for arr, key, b in kept:
         if arr is x and key == (step, nb):
             return b
-    # (fmax first: NaN goes to 0, as nan_to_num then clip did, in one pass less)
-    b = np.fmin(np.fmax(np.rint(np.asarray(x, dtype=float) / step), 0.0), nb - 1)
+    # in place, fmax first: NaN goes to bin 0 (a where table's ensemble is some 40 MB a copy,
+    # and each fresh copy is paid again in page faults)
+    b = np.divide(x, step, dtype=float)  # (float32 C/N0 of an ensemble: no copy before)
+    np.rint(b, out=b)
+    np.fmax(b, 0.0, out=b)
+    np.fmin(b, nb - 1, out=b)
     b = b.astype(np.int32)
     kept.insert(0, (x, (step, nb), b))
     del kept[_BINS_KEPT:]
@@ -432,6 +438,33 @@ class SegmentStats:
     sim: dict[str, np.ndarray]
     pair: dict[str, np.ndarray]
     fractions: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __reduce__(self) -> tuple:
+        return (_stats_unpacked, (self.real, *pack_vectors(self.sim), *pack_vectors(self.pair),
+                                  self.fractions))
+
+
+def _stats_unpacked(real: dict, sim_names: Any, sim: np.ndarray | None, pair_names: Any,
+                    pair: np.ndarray | None, fractions: Any) -> SegmentStats:
+    return SegmentStats(real, unpack_vectors(sim_names, sim), unpack_vectors(pair_names, pair),
+                        fractions)
+
+
+def pack_vectors(d: dict[str, np.ndarray]) -> tuple[Any, np.ndarray | None]:
+    """{name: (s,) float64} as (names, (m, s) array), to pickle: a job's result is unpickled in
+    the main process, some 3 us an array, tens of arrays a result (a sixth of the serial rest
+    of the benchmark hour at 16 workers went to it). Other dicts: (the dict, None).
+    :func:`unpack_vectors` undoes it."""
+    vals = list(d.values())
+    if vals and all(isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim == 1
+                    and v.shape == vals[0].shape for v in vals):
+        return tuple(d), np.stack(vals)
+    return d, None
+
+
+def unpack_vectors(names: Any, rows: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The dict :func:`pack_vectors` packed (each value a row of one array)."""
+    return names if rows is None else dict(zip(names, rows, strict=True))
 
 
 def merge_stats(parts: list[SegmentStats]) -> SegmentStats:
