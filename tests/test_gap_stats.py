@@ -677,3 +677,43 @@ def test_a_fits_interval_holds_what_fits_to_logs_from_its_point_pick():
     # seeds that tell the points apart: the refits pick the chosen point alone
     _, idx, info, picks = _cold_start_fit(rng, 2, spread=0.02)
     assert set(picks) == {idx} == {2}
+
+
+def test_statistics_and_scores_come_back_from_a_worker_as_they_left():
+    """Results cross to the main process pickled, their per-seed values packed as one array
+    (where.pack_vectors): what comes back equals what was sent, value for value and type for
+    type, whatever the dict holds."""
+    import pickle
+
+    from virtualgps.gap.simulator import UnitScore
+
+    rng = np.random.default_rng(3)
+    sim = {"cep50_m": rng.uniform(1, 3, 8), "fix_fraction": np.r_[1.0, np.nan, 0.9, 1, 1, 1, 1, 1]}
+    pair = {"eq4_deg": rng.uniform(0, 1e-5, 8)}
+    stats = where.SegmentStats({"cep50_m": 2.0, "eq4_deg": 3e-6}, sim, pair,
+                               (rng.uniform(size=(8, 4)), np.arange(4)))
+    odd = where.SegmentStats({}, {"ttff_s": np.arange(8)}, {})  # (an int array: left as it is)
+    judged = {m: (1.5, bands.judge(m, 1.5, v)) for m, v in sim.items()}
+    scores = [UnitScore(judged, np.ones((3, 4)), None, {m: v for m, v in sim.items()}),
+              UnitScore(judged), UnitScore({}, seeds={})]
+
+    def same(a, b):
+        if type(a) is not type(b):
+            return False
+        if isinstance(a, dict):
+            return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+        if isinstance(a, np.ndarray):
+            return a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+        if isinstance(a, tuple):  # (named ones too: Judged)
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+        if hasattr(a, "__dataclass_fields__"):
+            return all(same(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__)
+        if isinstance(a, float):
+            return a == b or (math.isnan(a) and math.isnan(b))
+        return a == b
+
+    for x in (stats, odd, *scores):
+        back = pickle.loads(pickle.dumps(x, pickle.HIGHEST_PROTOCOL))
+        assert same(x, back), x
+    assert not same(stats, where.SegmentStats(stats.real, {**sim, "cep50_m": sim["cep50_m"] + 1},
+                                              pair, stats.fractions))

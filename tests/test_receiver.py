@@ -144,6 +144,41 @@ def test_dop_of_a_2d_fix_is_what_mtk_firmware_prints():
     assert np.isnan(batch[:, 0]).all() and np.isfinite(batch[:, 1:]).all()
 
 
+def test_dop_is_the_inverse_of_the_normal_matrix_at_any_geometry():
+    """The closed form (a Schur complement and cofactors) against numpy's inverse of G^T G,
+    built epoch by epoch, over random skies of one and of two systems, 3D and 2D fixes."""
+    from virtualgps.receiver.solution import clock_columns
+
+    rng = np.random.default_rng(7)
+    n, k = 400, 12
+    los = geodesy.azel_to_enu_unit(rng.uniform(0, 360, (n, k)), rng.uniform(5, 90, (n, k)))
+    used = rng.uniform(size=(n, k)) < 0.6
+    used[:40] = False
+    used[:40, :3] = True  # 2D fixes (one clock)
+    prn = np.array([1, 2, 3, 4, 5, 6, 66, 67, 68, 69, 70, 71])  # GPS, then GLONASS
+    for clocks in (None, clock_columns(prn)):
+        h, v, p = dop(los, used, clocks)
+        for i in range(n):
+            u = used[i]
+            cl = np.ones((k, 1)) if clocks is None else clocks[:, (clocks[u] > 0).any(axis=0)]
+            g = np.concatenate([-los[i][u], cl[u]], axis=1)
+            if u.sum() == 2 + cl.shape[1]:  # the held height's row
+                g = np.vstack([g, np.r_[0.0, 0.0, 1.0, np.zeros(cl.shape[1])]])
+            if u.sum() < 2 + cl.shape[1]:
+                assert np.isnan(h[i])
+                continue
+            q = np.linalg.inv(g.T @ g)
+            assert h[i] == pytest.approx(np.sqrt(q[0, 0] + q[1, 1]), rel=1e-9)
+            assert v[i] == pytest.approx(np.sqrt(q[2, 2]), rel=1e-9)
+            assert p[i] == pytest.approx(np.sqrt(np.trace(q[:3, :3])), rel=1e-9)
+
+
+def test_dop_of_a_singular_geometry_is_nan():
+    # every satellite at one elevation: the height and the clock cannot be told apart
+    los = geodesy.azel_to_enu_unit([0.0, 90.0, 180.0, 270.0, 45.0], [30.0] * 5)
+    assert np.isnan(dop(los, np.ones(5, bool))).all()
+
+
 def test_mask_blocking_and_fix_rules():
     prof = load_profile("ideal")
     #            visible  below mask  blocked (az 100-140)  visible  visible
