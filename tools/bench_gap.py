@@ -20,10 +20,11 @@ workers.
 they are submitted, each timing itself, and a clock plays N workers (each job to the first free
 one, in submission order, as a process pool or Dask hands them out) beside the main process's
 own time. The diagnosis goes on exactly as with N real workers (each selection when its jobs
-are back by that clock). It leaves out what more cores cost each job (memory bandwidth, a
-shared cache) and what sending a job costs (pickling, pipes), so it bounds the speed-up from
-above, except that the located gaps are judged in the main thread rather than beside the
-workers; ``--workers 2 --model 2`` shows how close the model comes on this machine's cores.
+are back by that clock). Each job and each result is pickled and unpickled, on the main
+process's clock or the job's as in a pool. It leaves out what more cores cost each job (memory
+bandwidth, a shared cache) and the pool's pipes, so it bounds the speed-up from above, except
+that the located gaps are judged in the main thread rather than beside the workers;
+``--workers 2 --model 2`` shows how close the model comes on this machine's cores.
 Measure on the cores themselves where you have them.
 
 ``--profile-jobs DIR`` profiles the modelled runs' jobs alone (they run in this process there):
