@@ -227,9 +227,9 @@ def binned_quantile(x: np.ndarray, mask: np.ndarray, q: float, step: float, top:
     b = _bins(x, step, nb)[..., span, :]
     b = np.broadcast_to(b if cols is None else b[..., cols], mask.shape)
     if mask.ndim == 3:  # only the satellites the mask holds (one PRN, a sky sector)
-        cols = mask.any(axis=(0, 1))
-        if not cols.all():
-            b, mask = b[..., cols], mask[..., cols]
+        held = mask.any(axis=(0, 1))
+        if not held.all():
+            b, mask = b[..., held], mask[..., held]
     # one bincount over every row: masked-out values go to an extra bin past the last
     idx = np.where(mask, b, nb).reshape(s, -1)
     idx = idx + (np.arange(s, dtype=np.int32) * (nb + 1))[:, None]
@@ -311,6 +311,12 @@ def tracked_fractions(view: RunView, tracked: np.ndarray, sat_mask: np.ndarray) 
     return np.where(w[None, :] > 0, frac, np.nan), w
 
 
+def _row_span(m: np.ndarray) -> slice:
+    """The rows of an (n, k) bool mask from its first to its last with a True (empty: none)."""
+    rows = np.flatnonzero(m.any(axis=1))
+    return slice(rows[0], rows[-1] + 1) if rows.size else slice(0, 0)
+
+
 def _compared(view: RunView, epochs: np.ndarray, memo: dict | None
               ) -> tuple[slice, np.ndarray]:
     """A segment's compared satellite-epochs: the rows of the run that hold them and the
@@ -318,8 +324,7 @@ def _compared(view: RunView, epochs: np.ndarray, memo: dict | None
     hit = memo.get("compared") if memo else None
     if hit is None:
         m = view.sat_ok & (epochs & view.valid)[:, None]
-        rows = np.flatnonzero(m.any(axis=1))
-        span = slice(rows[0], rows[-1] + 1) if rows.size else slice(0, 0)
+        span = _row_span(m)
         hit = (span, m[span])
         if memo is not None:
             memo["compared"] = hit
@@ -630,8 +635,7 @@ def segment_stats(
         cols = sat_mask.any(axis=0) if has_sats else None
         if cols is not None and 2 * cols.sum() > cols.size:
             cols = None
-        rows = np.flatnonzero(sat_mask.any(axis=1)) if has_sats else None
-        span = slice(rows[0], rows[-1] + 1) if has_sats else slice(None)
+        span = _row_span(sat_mask) if has_sats else slice(None)
         if has_sats:
             sat_mask = sat_mask[span] if cols is None else sat_mask[span][:, cols]
         t = view.t_unix_s
