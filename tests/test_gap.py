@@ -16,7 +16,7 @@ import pytest
 
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.gap import motion, runs, select, where
+from virtualgps.gap import fit, motion, runs, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
 from virtualgps.poses.pose import PoseTrack
 from virtualgps.receiver.profiles import build_profile, load_profile, load_profile_dict
@@ -121,9 +121,9 @@ def test_calibrated_profile_toml_round_trips(tmp_path):
 
 def test_fit_keeps_the_default_without_evidence():
     j = np.array([0.50, 0.501, 0.499])
-    assert select.fit_index(j, default=1) == 1
+    assert fit.fit_index(j, default=1) == 1
     j[0] = 0.3  # clear evidence for point 0
-    assert select.fit_index(j, default=1) == 0
+    assert fit.fit_index(j, default=1) == 0
 
 
 def test_learned_sky_mask_blocks_bins_the_real_receiver_loses():
@@ -411,7 +411,7 @@ def test_the_report_says_which_values_round_into_a_fits_interval():
     into its interval's grid points: those the self-check counts as held."""
     from virtualgps.gap import report as rp
     from virtualgps.gap import tool
-    from virtualgps.gap.select import Fitted
+    from virtualgps.gap.fit import Fitted
     from virtualgps.gap.synthetic import covered
 
     grid = {"tau_s": [1.5, 2.0, 2.5, 3.0, 16.0], "sigma_m": [1.0, 2.0, 4.0]}

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from virtualgps.gap import bands, causes, design, motion, select, where
+from virtualgps.gap import bands, causes, design, fit, motion, select, where
 from virtualgps.gap import effects as fx
 
 
@@ -250,12 +250,12 @@ def test_identify_reports_what_the_data_cannot_pin_down():
     pts = c.points
     # the objective depends on sigma only: tau is not identifiable and stays at its default
     j = np.array([abs(p["sigma_m"] - 4.0) for p in pts])
-    idx, info = select.identify(c, j, j + 0.001)
+    idx, info = fit.identify(c, j, j + 0.001)
     assert pts[idx] == {"tau_s": 120.0, "sigma_m": 4.0}
     assert info["identifiable"] == {"tau_s": False, "sigma_m": True}
     assert info["grid_edge"] == {"sigma_m": "upper"}
     # flat: the default point
-    idx, info = select.identify(c, np.zeros(len(pts)), np.zeros(len(pts)))
+    idx, info = fit.identify(c, np.zeros(len(pts)), np.zeros(len(pts)))
     assert pts[idx] == c.default and info["flat"]
 
 
@@ -277,22 +277,22 @@ def test_a_refit_against_the_end_of_its_cut_grid_goes_on_past_it():
     def obj(f) -> np.ndarray:
         return np.array([f(p["tau_s"], p["sigma_m"]) for p in pts])
     # the best tau at the cut's lower end (60 s), clearly below 120 s: the whole grid has 30 s
-    assert select.pulled_past_cut(cut, obj(lambda tau, sig: tau / 100.0))
+    assert fit.pulled_past_cut(cut, obj(lambda tau, sig: tau / 100.0))
     # ... within FLAT_MIN of its inward neighbour: the data cannot say the fit would go on
-    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: tau / 1e4))
+    assert not fit.pulled_past_cut(cut, obj(lambda tau, sig: tau / 1e4))
     # the best inside the cut, or at an end of the whole grid (sigma 4), stays
-    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: abs(tau - 120.0) / 100.0))
-    assert not select.pulled_past_cut(cut, obj(lambda tau, sig: -sig + abs(tau - 120.0)))
+    assert not fit.pulled_past_cut(cut, obj(lambda tau, sig: abs(tau - 120.0) / 100.0))
+    assert not fit.pulled_past_cut(cut, obj(lambda tau, sig: -sig + abs(tau - 120.0)))
     # sigma's cut end 2 is not the whole grid's 1
-    assert select.pulled_past_cut(cut, obj(lambda tau, sig: sig + abs(tau - 120.0)))
+    assert fit.pulled_past_cut(cut, obj(lambda tau, sig: sig + abs(tau - 120.0)))
     # a fit at a cut end extends into the whole grid first, then past it on its own spacing
     assert cut.extended("tau_s", False).axes[0].values == (30.0, 60.0, 120.0, 240.0)
     assert cut.extended("tau_s", True).axes[0].values[-1] == 480.0
     assert cut.whole_beyond("sigma_m", True) is None and c.whole_beyond("tau_s", True) is None
     assert cut.extended("sigma_m", True).axes[1].values[-1] == 6.0
     # a whole grid has no cut; the objective's gaps (NaN) are left out
-    assert not select.pulled_past_cut(c, np.arange(len(c.points), dtype=float))
-    assert not select.pulled_past_cut(cut, np.full(len(pts), np.nan))
+    assert not fit.pulled_past_cut(c, np.arange(len(c.points), dtype=float))
+    assert not fit.pulled_past_cut(cut, np.full(len(pts), np.nan))
 
 
 def test_two_searches_that_end_alike_are_a_tie_the_report_names():
@@ -648,8 +648,8 @@ def _cold_start_fit(rng: np.random.Generator, truth_k: int, spread: float, n_uni
     units = list(range(n_units))
     j = {s: np.array([np.mean([where.gap_score(scores[(k, s, u)].judged)[0] for u in units])
                       for k in range(len(values))]) for s in (FIT, HELD)}
-    idx, info = select.identify(cand, j[FIT], j[HELD])
-    picks = select.refit_points(_GridSim(scores), [{"k": k} for k in range(len(values))], idx,
+    idx, info = fit.identify(cand, j[FIT], j[HELD])
+    picks = fit.refit_points(_GridSim(scores), [{"k": k} for k in range(len(values))], idx,
                                 units, cand.default_index)
     return cand, idx, info, picks
 
@@ -667,8 +667,8 @@ def test_a_fits_interval_holds_what_fits_to_logs_from_its_point_pick():
         truth = int(rng.integers(0, 5))
         cand, idx, info, picks = _cold_start_fit(rng, truth, spread=0.4)
         assert len(picks) == 16  # each seed of either set, one fit each
-        iv = select.intervals(cand, [*info["near"], *picks])["ttff_cold_s"]
-        near = select.intervals(cand, info["near"])["ttff_cold_s"]
+        iv = fit.intervals(cand, [*info["near"], *picks])["ttff_cold_s"]
+        near = fit.intervals(cand, info["near"])["ttff_cold_s"]
         value = cand.axes[0].values[truth]
         held["near"] += near[0] <= value <= near[1]
         held["refits"] += iv[0] <= value <= iv[1]

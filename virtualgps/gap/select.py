@@ -18,21 +18,14 @@ Candidates whose held-out gaps differ by less than :data:`TIE_EPS`, or swap plac
 other seed set, are tied; a tie goes to the candidate with fewer parameters.
 
 The added effect's parameters are then fitted on the selection's fit units with both seed sets
-(:func:`identify`): a parameter whose grid points all lie within the seeds' own noise of the
-best is not identifiable (the default is kept), and a best point at the edge of its grid extends
-the grid by one step, or is reported as a bound. Its interval holds those near-optimal points
-and, in the reported selection, the points that fits to logs drawn from the chosen point pick
-(:func:`refit_points`): the seeds' noise of the objective alone leaves out the real log's own
-luck (the near-optimal points alone held the injected value in 49 of 54 self-check parameters; 3
-of the 5 misses were a single grid point). Later rounds try the candidates that helped, refitted
-around the points their folds chose, on top of the effects added so far; one whose refit runs
-into an end of that cut is tried again on its whole grid (:func:`pulled_past_cut`), and the fit
-of an added one extends a cut axis into its whole grid first. Where the first round's
-runner-up, a competing explanation, is never added, a second search starts from it, kept where
-it ends clearly lower (by what adding an effect needs); where neither ends clearly lower, the
-report names the other as an equally good explanation (:func:`settle_paths`). At the end an
-added effect the others make redundant (the held-out gap no higher without it) is taken out
-again.
+(:mod:`.fit`: identifiability, intervals, grid edges). Later rounds try the candidates that
+helped, refitted around the points their folds chose, on top of the effects added so far; one
+whose refit runs into an end of that cut is tried again on its whole grid, and the fit of an
+added one extends a cut axis into its whole grid first. Where the first round's runner-up, a
+competing explanation, is never added, a second search starts from it, kept where it ends
+clearly lower (by what adding an effect needs); where neither ends clearly lower, the report
+names the other as an equally good explanation (:func:`settle_paths`). At the end an added
+effect the others make redundant (the held-out gap no higher without it) is taken out again.
 
 Selections are generators: they yield the (table, seed set, units) they need next, and a driver
 (:func:`drive`) runs several side by side, each going on as soon as its own request is
@@ -43,20 +36,19 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from virtualgps.gap import effects as fx
-from virtualgps.gap.bands import distances_many
 from virtualgps.gap.design import folds as make_folds
-from virtualgps.gap.simulator import FIT, HELD, Simulator
-from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, pooled_tracking_disagreement
+from virtualgps.gap.fit import FLAT_MIN, Fitted, fit_final, fit_index, grid_options, pulled_past_cut
+from virtualgps.gap.simulator import FIT, HELD, Request, Simulator
+from virtualgps.gap.where import pooled_tracking_disagreement
 from virtualgps.sky import systems
 
-FLAT_MIN = 0.02  # gap differences below this: the data cannot tell two points apart
 MIN_GAIN_ABS = 0.05  # an effect is added when it lowers the held-out gap by more than this
 MIN_GAIN_REL = 0.05  # and by more than this share of the gap before it
 WORSEN_MAX = 1.0  # ... and no metric's held-out distance rises by more than this
@@ -64,9 +56,6 @@ TIE_EPS = 0.02  # held-out gaps this close are a tie
 RETRY_BEST = 6  # candidates carried into the next round of the greedy search, at most
 COMPETITOR_SHARE = 0.5  # a runner-up explaining this share of the first effect's gain competes
 PROGRESS_EVERY_S = 10.0  # a progress line while choosing effects, at most this often
-
-Request = list[tuple[dict[str, Any], int, Sequence[int]]]  # (table, seed set, units)
-
 
 @dataclass
 class Tried:
@@ -105,230 +94,6 @@ def _mean(x: np.ndarray) -> float:
     return float(np.mean(x[np.isfinite(x)])) if np.isfinite(x).any() else math.nan
 
 
-def fit_index(objective: np.ndarray, default: int, flat: float = FLAT_MIN) -> int:
-    """The point with the smallest objective, unless the default is within ``flat`` of it (no
-    evidence keeps the prior). objective : (points,), NaN left out."""
-    if not np.isfinite(objective).any():
-        return default
-    best = int(np.nanargmin(objective))
-    if np.isfinite(objective[default]) and objective[default] - objective[best] <= flat:
-        return default
-    return best
-
-
-def pulled_past_cut(cand: fx.Candidate, objective: np.ndarray) -> bool:
-    """Whether a candidate cut to part of its grid (:meth:`Candidate.near`) is fitted against an
-    end of the cut that is not an end of its whole grid: the objective's best point lies there,
-    lower by more than FLAT_MIN than its neighbour inward along that axis, so the fit would go
-    on past the cut. (A later round refits around an earlier round's points; once other
-    effects are added, a parameter's best value may lie far from them: a noise scale first
-    fitted at 4 to cover a filter's lag belongs near 0.2 once the filter is added.)
-
-    objective : (points,) the mean gap of each of ``cand``'s points, NaN left out"""
-    if cand.whole is None or not np.isfinite(objective).any():
-        return False
-    points = cand.points
-    best = int(np.nanargmin(objective))
-    p = points[best]
-    for a, w in zip(cand.axes, cand.whole.axes, strict=True):
-        if len(a.values) < 2:
-            continue
-        for end, inward, whole_end in ((a.values[0], a.values[1], w.values[0]),
-                                       (a.values[-1], a.values[-2], w.values[-1])):
-            if p[a.name] == end and end != whole_end:
-                k = points.index(p | {a.name: inward})
-                if np.isfinite(objective[k]) and objective[k] - objective[best] > FLAT_MIN:
-                    return True
-    return False
-
-
-@dataclass(frozen=True)
-class Fitted:
-    """A candidate fitted on a selection's fit units.
-
-    overrides : the chosen point's tables; point : its axis values
-    intervals : per axis, the values of the grid points within the noise of the best and,
-        where ``refits``, of those the refits picked ([lo, hi] for numbers, the values for
-        choices)
-    identifiable : per axis, whether the points within the noise of the best leave some grid
-        values out (the objective is not flat along it)
-    grid_edge : per axis fitted at an end of its grid: "upper" or "lower"
-    bounds : per axis still at an end after extending: ">= v" or "<= v"
-    flat : no point is better than another beyond the noise
-    noise : the seeds' noise of the objective used
-    grid : per numeric axis, the grid values fitted over (after any extension): an interval
-        resolves a value to the nearest of them
-    refits : the fits to logs drawn from the chosen point that widened the intervals
-        (:func:`refit_points`; 0: not done)
-    """
-
-    overrides: dict
-    point: dict
-    intervals: dict = field(default_factory=dict)
-    identifiable: dict = field(default_factory=dict)
-    grid_edge: dict = field(default_factory=dict)
-    bounds: dict = field(default_factory=dict)
-    flat: bool = False
-    noise: float = 0.0
-    grid: dict = field(default_factory=dict)
-    refits: int = 0
-
-    def public(self) -> dict:
-        """The report's ``fit`` entry; ``spans``: per numeric axis with an interval, the values
-        that round into its grid points
-        (:func:`virtualgps.gap.effects.grid_span`)."""
-        spans = {k: fx.grid_span(self.grid[k], *iv) for k, iv in self.intervals.items()
-                 if k in self.grid and isinstance(iv, list) and len(iv) == 2}
-        return {"intervals": self.intervals, "spans": spans,
-                "identifiable": self.identifiable, "grid_edge": self.grid_edge,
-                "bounds": self.bounds, "flat": self.flat, "noise": self.noise,
-                "grid": self.grid, "refits": self.refits}
-
-
-def identify(cand: fx.Candidate, j_fit: np.ndarray, j_held: np.ndarray
-             ) -> tuple[int, dict[str, Any]]:
-    """Which grid point to keep and what the data say of each parameter.
-
-    The objective is the mean of the two seed sets' gaps; its noise is twice the spread over
-    the grid of half their difference (the seeds' luck, which differs between the sets). The
-    points within that noise (at least FLAT_MIN) of the best are near-optimal: a parameter is
-    identifiable when they leave some of its grid values out. Each parameter is kept at the
-    middle of its near-optimal values, or at its default when not identifiable, where that
-    point is near-optimal too (else the best point); a flat objective keeps the default.
-
-    j_fit, j_held : (points,) mean gap on the fit units with each seed set
-    Returns the point's index and {"intervals", "identifiable", "grid_edge", "flat", "noise",
-    "near" (the indices of the points within the noise of the best)}
-    """
-    j = np.nanmean(np.stack([j_fit, j_held]), axis=0)
-    d = (j_fit - j_held) / 2.0
-    d = d[np.isfinite(d)]
-    noise = float(2.0 * np.std(d)) if d.size >= 3 else 0.0
-    flat = max(FLAT_MIN, noise)
-    points = cand.points
-    default = cand.default_index
-    if not np.isfinite(j).any():
-        return default, {"intervals": {}, "identifiable": {}, "grid_edge": {}, "flat": True,
-                         "noise": noise, "near": []}
-    best = int(np.nanargmin(j))
-    near = np.isfinite(j) & (j <= j[best] + flat)
-    info: dict[str, Any] = {"intervals": {}, "identifiable": {}, "grid_edge": {},
-                            "flat": bool(near.all()), "noise": noise}
-    for axis in cand.axes:
-        vals = {p[axis.name] for p, n in zip(points, near, strict=True) if n}
-        info["identifiable"][axis.name] = vals != set(axis.values)
-    # Each parameter at the middle of its near-optimal values (the best single point chases
-    # the seeds' noise along a flat valley), and each the data cannot pin down at its default
-    # (no evidence keeps the prior; with none at all, the default point itself); the best
-    # point where that combination is not near-optimal.
-    keep = dict(points[best])
-    for a in cand.axes:
-        if not info["identifiable"].get(a.name, True):
-            keep[a.name] = points[default][a.name]
-        else:
-            vals = [v for v in a.values
-                    if any(n and p[a.name] == v for p, n in zip(points, near, strict=True))]
-            keep[a.name] = vals[(len(vals) - 1) // 2]
-    idx = default if info["flat"] else next(
-        (k for k, p in enumerate(points) if p == keep and near[k]), best)
-    info["near"] = [int(k) for k in np.flatnonzero(near)]
-    info["intervals"] = intervals(cand, info["near"])
-    for axis in cand.axes:
-        if len(axis.values) < 2:
-            continue
-        vals = [p[axis.name] for p, n in zip(points, near, strict=True) if n]
-        numeric = _numeric(axis)
-        ident = info["identifiable"][axis.name]
-        v = points[idx][axis.name]
-        if ident and numeric and v == max(axis.values) and min(vals) > min(axis.values):
-            info["grid_edge"][axis.name] = "upper"
-        elif ident and numeric and v == min(axis.values) and max(vals) < max(axis.values):
-            info["grid_edge"][axis.name] = "lower"
-    return idx, info
-
-
-def _numeric(axis: fx.Axis) -> bool:
-    return all(isinstance(v, int | float) and not isinstance(v, bool) for v in axis.values)
-
-
-def intervals(cand: fx.Candidate, points: Sequence[int]) -> dict[str, Any]:
-    """Per axis of more than one value, the span of some grid points' values ([lo, hi] for
-    numbers, the values for choices). points : indices into ``cand.points``"""
-    out: dict[str, Any] = {}
-    for axis in cand.axes:
-        if len(axis.values) < 2:
-            continue
-        vals = [cand.points[k][axis.name] for k in points]
-        out[axis.name] = ([min(vals), max(vals)] if _numeric(axis)
-                          else sorted(set(vals), key=str))
-    return out
-
-
-def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequence[int],
-                 default: int) -> list[int]:
-    """The grid points that fits to logs drawn from the chosen point pick: a parametric
-    bootstrap of the fit. Each of the chosen point's seeds, of either seed set, is taken as
-    the real log of every unit and judged against every grid point's seeds of the other set
-    (the sets are disjoint: a pseudo-log is independent of the ensembles it meets); its point
-    is the one :func:`fit_index` picks from its mean gap over the units, in the seeds' own
-    spread. The spread of these points is what the real log's own luck does to the fit, which
-    the seeds' noise of the objective alone leaves out.
-
-    tables : (T,) the grid's profile tables, each scored on ``units`` with both seed sets;
-    idx, default : the chosen and the default point's indices
-    Returns the picked indices, one per pseudo-log with a gap (2 x seeds per set at most)
-    """
-    picks: list[int] = []
-    n_t = len(tables)
-    for own, other in ((HELD, FIT), (FIT, HELD)):
-        hat = sim.scores(tables[idx], own, units)
-        grid = [sim.scores(t, other, units) for t in tables]
-        total: np.ndarray | None = None
-        for k in range(len(units)):
-            sc = hat[k]
-            if not sc.seeds:
-                continue
-            n_b = next(iter(sc.seeds.values())).size
-            d_sum, d_n = np.zeros((n_t, n_b)), np.zeros((n_t, n_b))
-            for m, values in sc.seeds.items():
-                have = [t for t in range(n_t) if m in grid[t][k].judged]
-                if not have:
-                    continue
-                d = distances_many(m, values, [grid[t][k].judged[m][1] for t in have],
-                                   [grid[t][k].seeds[m] for t in have])
-                ok = np.isfinite(d)
-                d_sum[have] += np.where(ok, d, 0.0)
-                d_n[have] += ok
-            with np.errstate(invalid="ignore"):
-                unit_gap = d_sum / d_n  # (T, B): NaN where no metric judged
-            if total is None:
-                total, count = np.zeros((n_t, n_b)), np.zeros((n_t, n_b))
-            ok = np.isfinite(unit_gap)
-            total += np.where(ok, unit_gap, 0.0)
-            count += ok
-        if total is None:
-            continue
-        with np.errstate(invalid="ignore"):
-            j = total / count
-        picks += [fit_index(j[:, b], default) for b in range(j.shape[1])
-                  if np.isfinite(j[:, b]).any()]
-    return picks
-
-
-def _options(sim: Simulator, table: dict, cand: fx.Candidate, train: Sequence[int]
-             ) -> tuple[list[dict], int]:
-    """A candidate's override tables on top of ``table`` and the default's index: its grid,
-    or for a learned sky mask the masks learned from the training units at each level (the
-    table's sky bins must have been requested with the fitting seeds)."""
-    if not cand.learned:
-        return cand.grid, cand.default_index
-    counts = sim.sky_bins(table, FIT, train)
-    masks = [fx.learned_sky_mask(counts, lv, SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, cand.learned_atten)
-             for lv in cand.learned]
-    masks = [m for m in masks if m is not None]
-    return (masks, len(masks) // 2) if masks else ([{}], 0)
-
-
 def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[dict],
                    folds: list[list[int]], train: list[list[int]]
                    ) -> Generator[Request, None, list[Tried]]:
@@ -343,7 +108,7 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
     req: Request = []
     for ci, c in enumerate(cands):
         for f in range(n_f):
-            opts, default = _options(sim, fold_tables[f], c, train[f])
+            opts, default = grid_options(sim, fold_tables[f], c, train[f])
             options[ci, f] = (opts, default)
             tables[ci, f] = [fx.apply(fold_tables[f], o) for o in opts]
             req += [(t, FIT, train[f]) for t in tables[ci, f]]
@@ -430,50 +195,6 @@ def acceptable(tr: Tried, current: float) -> tuple[bool, str]:
     if worse:
         return False, "it worsens " + ", ".join(f"{m} by {d:.2f}" for m, d in worse.items())
     return True, ""
-
-
-def fit_final(sim: Simulator, table: dict, cand: fx.Candidate, units: Sequence[int],
-              refits: bool = False) -> Generator[Request, None, Fitted]:
-    """Fit a candidate on top of ``table`` over ``units`` with both seed sets, extending an
-    axis once where the best point lies at its edge (a generator). ``refits``: the
-    intervals also hold the points fits to logs drawn from the chosen point pick
-    (:func:`refit_points`; the reported selection's)."""
-    if cand.learned:
-        yield [(table, FIT, units)]
-        opts, default = _options(sim, table, cand, units)
-        tables = [fx.apply(table, o) for o in opts]
-        yield [(t, FIT, units) for t in tables]
-        j = np.array([sim.gap(t, FIT, units) for t in tables])
-        k = fit_index(j, default)
-        return Fitted(opts[k], {"level": cand.learned[min(k, len(cand.learned) - 1)]})
-    extended: set[str] = set()
-    while True:
-        tables = [fx.apply(table, o) for o in cand.grid]
-        yield [(t, s, units) for t in tables for s in (FIT, HELD)]
-        jf = np.array([sim.gap(t, FIT, units) for t in tables])
-        jh = np.array([sim.gap(t, HELD, units) for t in tables])
-        idx, info = identify(cand, jf, jh)
-        grow = next(((a, side) for a, side in info["grid_edge"].items() if a not in extended),
-                    None)
-        if grow is None:
-            break
-        axis, upper = grow[0], grow[1] == "upper"
-        if cand.whole_beyond(axis, upper) is None:
-            extended.add(axis)  # (past the whole grid: one step, once)
-        bigger = cand.extended(axis, upper)
-        if bigger is None:
-            continue
-        cand = bigger
-    point = cand.points[idx]
-    bounds = {a: (">= " if side == "upper" else "<= ") + f"{point[a]:g}"
-              for a, side in info["grid_edge"].items()}
-    grid = {a.name: sorted(a.values) for a in cand.axes if _numeric(a)}
-    picks: list[int] = []
-    if refits and len(tables) > 1:
-        picks = refit_points(sim, tables, idx, units, cand.default_index)
-        info["intervals"] = intervals(cand, [*info["near"], *picks])
-    return Fitted(cand.grid[idx], point, info["intervals"], info["identifiable"],
-                  info["grid_edge"], bounds, info["flat"], info["noise"], grid, len(picks))
 
 
 @dataclass

@@ -24,7 +24,7 @@ import json
 import math
 import uuid
 from collections import OrderedDict
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,6 +53,8 @@ from virtualgps.gap.where import (
 
 FIT, HELD, OUTER = 0, 1, 2  # seed sets
 MIN_JOBS_PER_WORKER = 3  # a smaller batch has its jobs' seeds split
+# What a selection asks the simulator for: (profile table, seed set, units) to be scored
+Request = list[tuple[dict[str, Any], int, Sequence[int]]]
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,7 @@ class UnitScore:
     :func:`virtualgps.gap.where.bin_tracking`). Its gap is read through
     :meth:`Simulator.gap`, beside the reference's judgments of the same unit. ``seeds``:
     {metric: (seeds,)} each judged metric's per-seed values (a fit's interval judges them as
-    if real, :func:`virtualgps.gap.select.refit_points`)."""
+    if real, :func:`virtualgps.gap.fit.refit_points`)."""
 
     judged: dict[str, tuple[float, Judged]]
     prn: np.ndarray | None = None
@@ -270,7 +272,7 @@ class Simulator:
         """The seeds of a seed set (disjoint ranges)."""
         return tuple(range(seed_set * self.n_seeds, (seed_set + 1) * self.n_seeds))
 
-    def request(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> None:
+    def request(self, items: Request) -> None:
         """Make sure every (table, seed set, units) item is scored (:meth:`submit`, then
         :meth:`collect` until :meth:`has`)."""
         items = list(items)
@@ -278,7 +280,7 @@ class Simulator:
         while not self.has(items):
             self.collect()
 
-    def submit(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> None:
+    def submit(self, items: Request) -> None:
         """Submit the jobs that score what is neither scored nor under way of (table, seed
         set, units) items: one per table, seed set and run, scoring that run's missing units.
         Per-sky-bin counts come with the fitting seeds (learned sky masks are fitted),
@@ -343,7 +345,7 @@ class Simulator:
         """Simulations of a (table, seed set, run) after its first (see :meth:`submit`)."""
         return sum(self._simulated.values()) - len(self._simulated)
 
-    def has(self, items: Iterable[tuple[dict[str, Any], int, Sequence[int]]]) -> bool:
+    def has(self, items: Request) -> bool:
         """Whether every (table, seed set, units) item is scored."""
         return all((self.key(table), seed_set, u) in self._scores
                    for table, seed_set, units in items for u in units)
