@@ -16,7 +16,7 @@ import pytest
 
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.gap import fit, motion, runs, where
+from virtualgps.gap import fit, motion, observed, runs, where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
 from virtualgps.poses.pose import PoseTrack
 from virtualgps.receiver.profiles import build_profile, load_profile, load_profile_dict
@@ -69,7 +69,7 @@ def test_lag_recovers_a_known_latency():
 
 def test_position_quantum_is_the_logs_printed_resolution():
     lat = 52.0 + np.round(np.random.default_rng(4).normal(0, 1e-4, 200) * 6e5) / 6e5
-    assert where.position_quantum_min(lat, lat) == pytest.approx(1e-4)
+    assert observed.position_quantum_min(lat, lat) == pytest.approx(1e-4)
 
 
 # --- candidates and profiles ---------------------------------------------------------------------

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from virtualgps.gap import bands, causes, design, fit, motion, select, where
+from virtualgps.gap import bands, causes, design, fit, motion, observed, select, where
 from virtualgps.gap import effects as fx
 
 
@@ -173,10 +173,10 @@ def test_a_guarded_distance_keeps_the_candidates_own_spread_when_its_centre_come
 
 
 def test_printed_step_reads_the_logs_digits():
-    assert where.printed_step(np.array([1.0, 0.99, 1.23])) == pytest.approx(0.01)
-    assert where.printed_step(np.array([0.9, 1.1, 2.0])) == pytest.approx(0.1)
-    assert where.printed_step(np.array([135.2, 140.0, np.nan])) == pytest.approx(0.1)
-    assert where.printed_step(np.array([np.nan])) == 0.0
+    assert observed.printed_step(np.array([1.0, 0.99, 1.23])) == pytest.approx(0.01)
+    assert observed.printed_step(np.array([0.9, 1.1, 2.0])) == pytest.approx(0.1)
+    assert observed.printed_step(np.array([135.2, 140.0, np.nan])) == pytest.approx(0.1)
+    assert observed.printed_step(np.array([np.nan])) == 0.0
 
 
 def test_segments_holding_the_same_epochs_are_one_row():

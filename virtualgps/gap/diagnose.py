@@ -26,12 +26,11 @@ from scipy import special
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import MAX_INNER, Design
 from virtualgps.gap.motion import LAG_MIN_VEL_RMS_MPS
+from virtualgps.gap.observed import Obs, RunView
 from virtualgps.gap.runs import Run
 from virtualgps.gap.select import Request, Selection, drive, select
 from virtualgps.gap.simulator import HELD, OUTER, Simulator
 from virtualgps.gap.where import (
-    Obs,
-    RunView,
     errors_enu,
     finish_rows,
     judged_rows,
@@ -130,9 +129,6 @@ def choose_effects(sim: Simulator, base: dict, opts: Options, has_mesh: bool, ha
         gens[f"outer {o}"] = _outer(sim, base, inner, group, candidates)
     res = drive(sim, gens, progress)
     return Choice(res["full"], [res[f"outer {o}"] for o in range(len(design.outer))])
-
-
-# --- where ---------------------------------------------------------------------------------------
 
 
 # --- where --------------------------------------------------------------------------------------

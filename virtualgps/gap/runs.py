@@ -16,16 +16,8 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.gap.ensemble import Ensemble, Geometry, RunSetup, geometry_job, setup_digest
 from virtualgps.gap.jobs import map_jobs
-from virtualgps.gap.where import (
-    SKY_BIN_AZ_DEG,
-    SKY_BIN_EL_DEG,
-    Obs,
-    RunView,
-    errors_enu,
-    position_quantum_min,
-    printed_step,
-    quantize,
-)
+from virtualgps.gap.observed import Obs, RunView, position_quantum_min, printed_step, quantize
+from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, errors_enu
 from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import Profile
 from virtualgps.sky import systems

@@ -28,9 +28,10 @@ from virtualgps.gap.ensemble import ephemeris_of
 from virtualgps.gap.ingest import ingest_notes
 from virtualgps.gap.jobs import modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
+from virtualgps.gap.observed import Obs, RunView
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
-from virtualgps.gap.where import Obs, RunView, autocorr_time_s, errors_enu, tracked_fractions
+from virtualgps.gap.where import autocorr_time_s, errors_enu, tracked_fractions
 from virtualgps.receiver.profiles import build_profile, load_profile_dict
 from virtualgps.run.config import coverage_note
 from virtualgps.sky import ephemeris as eph
