@@ -610,15 +610,56 @@ def test_many_values_against_many_ensembles_are_judged_as_one_by_one():
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
 
 
+def test_many_values_are_guarded_by_the_reference_as_one_by_one():
+    """With a reference, distances_many is distance_against for each pair: an ensemble whose
+    centre lies further from a value than the reference's, beyond their noise, is measured in
+    the reference's spread where that is further (a wide ensemble far off gains nothing by its
+    width); one no further keeps its own distance. Rank-judged ensembles or references keep
+    their own too."""
+    rng = np.random.default_rng(11)
+    for metric in ("cep50_m", "fix_fraction", "ttff_s"):
+        ens = [np.exp(rng.normal(1.0, 0.1, 8)),  # narrow, at the reference
+               np.exp(rng.normal(4.5, 1.5, 8)),  # wide and far: guarded
+               np.exp(rng.normal(0.2, 0.05, 8)),  # narrow, off to the other side
+               np.array([np.nan] * 3 + list(rng.uniform(10.0, 60.0, 5)))]
+        refs = [np.exp(rng.normal(1.0, 0.1, 8)), np.array([1.0, 2.0, 3.0, np.nan] * 2)]
+        if metric == "fix_fraction":
+            ens = [1.0 - np.abs(e - np.nanmedian(e)) / 100.0 for e in ens]
+            refs = [1.0 - np.abs(r - np.nanmedian(r)) / 100.0 for r in refs]
+        values = np.concatenate([np.exp(rng.normal(1.0, 0.3, 10)), [np.nan]])
+        if metric == "fix_fraction":
+            values = 1.0 - np.abs(values - 1.0) / 100.0
+        if metric == "ttff_s":  # (start-ups of tens of seconds: beyond the 2 s floor)
+            ens, refs, values = [20.0 * e for e in ens], [20.0 * r for r in refs], 20.0 * values
+        guarded = 0
+        for r in refs:
+            ref = bands.judge(metric, 1.0, r)
+            judged = [bands.judge(metric, 1.0, e) for e in ens]
+            got = bands.distances_many(metric, values, judged, ens, ref)
+            want = np.array([[bands.distance_against(metric, float(v), bands.judge(
+                metric, float(v), e), bands.judge(metric, float(v), r))
+                if math.isfinite(v) else math.nan for v in values] for e in ens])
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+            guarded += int(np.sum(got > bands.distances_many(metric, values, judged, ens)))
+        assert guarded > 0, metric  # (the wide, far ensemble was guarded somewhere)
+
+
 class _GridSim:
     """A stand-in for the Simulator's scores: grid point k's seeds of each seed set, per unit
-    (only :meth:`scores` is read by a fit's refits)."""
+    (only :meth:`scores` and :meth:`reference_scores` are read by a fit's refits); the
+    reference is one of the grid's points."""
 
-    def __init__(self, scores: dict) -> None:
+    def __init__(self, scores: dict, reference: dict | None = None) -> None:
         self._scores = scores
+        self.reference_table = reference
 
     def scores(self, table: dict, seed_set: int, units: list[int]) -> list:
         return [self._scores[(table["k"], seed_set, u)] for u in units]
+
+    def reference_scores(self, seed_set: int, units: list[int]) -> list | None:
+        if self.reference_table is None:
+            return None
+        return self.scores(self.reference_table, seed_set, units)
 
 
 def _cold_start_fit(rng: np.random.Generator, truth_k: int, spread: float, n_units: int = 1):
@@ -649,8 +690,9 @@ def _cold_start_fit(rng: np.random.Generator, truth_k: int, spread: float, n_uni
     j = {s: np.array([np.mean([where.gap_score(scores[(k, s, u)].judged)[0] for u in units])
                       for k in range(len(values))]) for s in (FIT, HELD)}
     idx, info = fit.identify(cand, j[FIT], j[HELD])
-    picks = fit.refit_points(_GridSim(scores), [{"k": k} for k in range(len(values))], idx,
-                                units, cand.default_index)
+    grid = [{"k": k} for k in range(len(values))]
+    picks = fit.refit_points(_GridSim(scores, grid[cand.default_index]), grid, idx, units,
+                             cand.default_index)
     return cand, idx, info, picks
 
 

@@ -299,26 +299,28 @@ def distance(z: float) -> float:
 
 
 def distances_many(metric: str, reals: np.ndarray, judged: Sequence[Judged],
-                   sims: Sequence[np.ndarray]) -> np.ndarray:
-    """Score distances (:func:`distance` of :func:`judge`'s z, no reference) of many values
-    against many ensembles of one metric at once: each ``reals[b]`` judged as the real value
-    against each ensemble ``t``.
+                   sims: Sequence[np.ndarray], ref: Judged | None = None) -> np.ndarray:
+    """Score distances of many values against many ensembles of one metric at once: each
+    ``reals[b]`` judged as the real value against each ensemble ``t``, as
+    :func:`distance_against` with the same reference (:func:`distance` of :func:`judge`'s z
+    without one).
 
     reals : (B,) values (NaN: none, its column NaN); judged : (T,) :func:`judge` of any value
     against each ensemble (it gives the centre, spread and path); sims : (T,) each ensemble's
-    seeds' values (read where an ensemble is rank-judged). Returns (T, B), NaN where an
-    ensemble cannot judge.
+    seeds' values (read where an ensemble is rank-judged); ref : :func:`judge` of any value
+    against the reference's seeds (its centre and spread guard each distance). Returns
+    (T, B), NaN where an ensemble cannot judge.
     """
     r_all = np.asarray(reals, dtype=float)
     fin = np.isfinite(r_all)
     out = np.full((len(judged), r_all.size), np.nan)
     if fin.any():
-        out[:, fin] = _distances_finite(metric, r_all[fin], judged, sims)
+        out[:, fin] = _distances_finite(metric, r_all[fin], judged, sims, ref)
     return out
 
 
 def _distances_finite(metric: str, r: np.ndarray, judged: Sequence[Judged],
-                      sims: Sequence[np.ndarray]) -> np.ndarray:
+                      sims: Sequence[np.ndarray], ref: Judged | None) -> np.ndarray:
     spec = METRICS[metric]
     out = np.full((len(judged), r.size), np.nan)
     normal = [t for t, j in enumerate(judged) if not j.rank and math.isfinite(j.sd_g)]
@@ -327,21 +329,43 @@ def _distances_finite(metric: str, r: np.ndarray, judged: Sequence[Judged],
             out[t] = [distance(judge(metric, float(x), sims[t]).z) for x in r]
     if not normal:
         return out
-    centre = np.array([judged[t].centre for t in normal])[:, None]
-    sd = np.array([judged[t].sd_g for t in normal])[:, None]
-    n = np.array([judged[t].n for t in normal])[:, None]
+    own = [judged[t] for t in normal]
+    centre = np.array([j.centre for j in own])[:, None]
+    sd = np.array([j.sd_g for j in own])[:, None]
+    n = np.array([j.n for j in own])[:, None]
+    d = _predictive_distances(spec, r, centre, sd, n)
+    if ref is not None and not ref.rank and math.isfinite(ref.sd_g):
+        # (the guard of distance_against, for every pair at once)
+        g_r = _g(spec, r)[None, :]
+        miss_own = np.abs(g_r - _g(spec, centre))
+        miss_ref = np.abs(g_r - _g1(spec, ref.centre))
+        tol = np.array([_t_quantile(min(j.n, ref.n) - 1, 1.0 - GUARD_P) * math.sqrt(
+            j.sd_g ** 2 / j.n + ref.sd_g ** 2 / ref.n) for j in own])[:, None]
+        away = miss_own > miss_ref + tol
+        if away.any():
+            in_ref = _predictive_distances(spec, r, centre, np.full_like(sd, ref.sd_g),
+                                           np.full_like(n, ref.n))
+            d = np.where(away, np.maximum(d, in_ref), d)
+    out[normal] = d
+    return out
+
+
+def _predictive_distances(spec: MetricSpec, r: np.ndarray, centre: np.ndarray, sd_g: np.ndarray,
+                          n: np.ndarray) -> np.ndarray:
+    """:func:`distance` of :func:`_predictive`'s z for every pair at once (its vector twin:
+    :func:`judge` takes one value, a fit's refits take every seed against every grid point).
+
+    r : (B,) finite values; centre, sd_g, n : (T, 1) the ensembles'; returns (T, B)"""
     floor = np.maximum(spec.floor, spec.rel_floor * np.abs(centre))
-    # (as _predictive, for every pair at once)
     sign = np.where(r[None, :] > centre, 1.0, -1.0)
     d = np.abs(_g(spec, r)[None, :] - _g(spec, centre + sign * floor))
-    scale = sd * np.sqrt(1.0 + 1.0 / n)
+    scale = sd_g * np.sqrt(1.0 + 1.0 / n)
     with np.errstate(divide="ignore", invalid="ignore"):
         p = np.where(scale > 0, 2.0 * special.stdtr(n - 1, -d / np.where(scale > 0, scale, 1.0)),
                      np.where(d > 0, 0.0, 1.0))
     z = np.minimum(Z_CAP, -special.ndtri(np.maximum(p, 1e-300) / 2.0))
     z = np.where((np.abs(r[None, :] - centre) <= floor) | (p >= 1.0), 0.0, z)
-    out[normal] = np.clip(z - DEAD_ZONE_Z, 0.0, D_CAP)
-    return out
+    return np.clip(z - DEAD_ZONE_Z, 0.0, D_CAP)
 
 
 def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) -> float:

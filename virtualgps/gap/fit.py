@@ -198,11 +198,14 @@ def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequen
     the real log of every unit and judged against every grid point's seeds of the other set
     (the sets are disjoint: a pseudo-log is independent of the ensembles it meets); its point
     is the one :func:`fit_index` picks from its mean gap over the units, in the seeds' own
-    spread. The spread of these points is what the real log's own luck does to the fit, which
-    the seeds' noise of the objective alone leaves out.
+    spread and guarded by the reference's as the real log's gap is
+    (:func:`virtualgps.gap.bands.distance_against`). The spread of these points is what the
+    real log's own luck does to the fit, which the seeds' noise of the objective alone leaves
+    out.
 
-    tables : (T,) the grid's profile tables, each scored on ``units`` with both seed sets;
-    idx, default : the chosen and the default point's indices
+    tables : (T,) the grid's profile tables, each scored on ``units`` with both seed sets, as
+        is the simulator's reference (where it has one); idx, default : the chosen and the
+        default point's indices
     Returns the picked indices, one per pseudo-log with a gap (2 x seeds per set at most)
     """
     picks: list[int] = []
@@ -210,6 +213,9 @@ def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequen
     for own, other in ((HELD, FIT), (FIT, HELD)):
         hat = sim.scores(tables[idx], own, units)
         grid = [sim.scores(t, other, units) for t in tables]
+        # (the guard of the real log's objective, from the reference's seeds of the other
+        # set: like the real log, a pseudo-log shares no seed with the ensembles it meets)
+        ref = sim.reference_scores(other, units)
         total: np.ndarray | None = None
         for k in range(len(units)):
             sc = hat[k]
@@ -221,8 +227,10 @@ def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequen
                 have = [t for t in range(n_t) if m in grid[t][k].judged]
                 if not have:
                     continue
+                guard = ref[k].judged.get(m) if ref is not None else None
                 d = distances_many(m, values, [grid[t][k].judged[m][1] for t in have],
-                                   [grid[t][k].seeds[m] for t in have])
+                                   [grid[t][k].seeds[m] for t in have],
+                                   guard[1] if guard is not None else None)
                 ok = np.isfinite(d)
                 d_sum[have] += np.where(ok, d, 0.0)
                 d_n[have] += ok
@@ -243,7 +251,7 @@ def refit_points(sim: Simulator, tables: Sequence[dict], idx: int, units: Sequen
 
 
 def grid_options(sim: Simulator, table: dict, cand: fx.Candidate, train: Sequence[int]
-             ) -> tuple[list[dict], int]:
+                 ) -> tuple[list[dict], int]:
     """A candidate's override tables on top of ``table`` and the default's index: its grid,
     or for a learned sky mask the masks learned from the training units at each level (the
     table's sky bins must have been requested with the fitting seeds)."""
@@ -294,6 +302,8 @@ def fit_final(sim: Simulator, table: dict, cand: fx.Candidate, units: Sequence[i
     grid = {a.name: sorted(a.values) for a in cand.axes if _numeric(a)}
     picks: list[int] = []
     if refits and len(tables) > 1:
+        if sim.reference_table is not None:
+            yield [(sim.reference_table, s, units) for s in (FIT, HELD)]
         picks = refit_points(sim, tables, idx, units, cand.default_index)
         info["intervals"] = intervals(cand, [*info["near"], *picks])
     return Fitted(cand.grid[idx], point, info["intervals"], info["identifiable"],

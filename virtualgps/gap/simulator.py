@@ -266,6 +266,7 @@ class Simulator:
         # units under way: one slot per seed group, filled as the jobs come back
         self._parts: dict[tuple[str, int, int], list[UnitPart | UnitScore | None]] = {}
         self.reference: str | None = None  # see set_reference
+        self.reference_table: dict[str, Any] | None = None
         self._gaps: dict[tuple[str, int, int, str | None], tuple[float, dict[str, float]]] = {}
 
     def seeds(self, seed_set: int) -> tuple[int, ...]:
@@ -375,6 +376,13 @@ class Simulator:
         in its own seeds' spread alone. Its held-out scores must be requested before any
         other table's gap of those units is read."""
         self.reference = None if table is None else self.key(table)
+        self.reference_table = table
+
+    def reference_scores(self, seed_set: int, units: Sequence[int]) -> list[UnitScore] | None:
+        """The reference's scores of some units with a seed set (after :meth:`request` of
+        (:attr:`reference_table`, seed set, units)); None without a reference."""
+        return None if self.reference_table is None else self.scores(
+            self.reference_table, seed_set, units)
 
     def _unit_gap(self, key: str, seed_set: int, u: int) -> tuple[float, dict[str, float]]:
         k = (key, seed_set, u, self.reference)
