@@ -1,13 +1,13 @@
 """Choosing effects (DESIGN 7.2): fit each candidate's parameters on training units, measure it
 on held-out units, and add the best while it clearly helps.
 
-One selection works on a set of units and their folds. Each round, for every candidate and
-every fold, each grid point is simulated with the fitting seeds over the runs (common random
-numbers: every point runs the same seeds, so the objective is smooth in the parameters); the
-fold's point is the one with the smallest mean gap on the fold's training units (its default
-unless another point is better by more than :data:`FLAT_MIN`); that point is then measured on
-the fold's held-out units with the held-out seeds, never the fitting ones (with common random
-numbers a run's blocks share seeds, and a fit would carry their luck into its held-out blocks).
+One selection works on a set of units and their folds. Each round, for every candidate and every
+fold, each grid point is simulated with the fitting seeds over the runs (common random numbers:
+every point runs the same seeds, so the objective is smooth in the parameters); the fold's point
+is the one with the smallest mean gap on the fold's training units (its default unless another
+point is better by more than :data:`.fit.FLAT_MIN`); that point is then measured on the fold's
+held-out units with the held-out seeds, never the fitting ones (with common random numbers a
+run's blocks share seeds, and a fit would carry their luck into its held-out blocks).
 
 A candidate is added when its held-out gain is clear (:func:`acceptable`): over the folds it
 changes, larger than twice :data:`MIN_GAIN_ABS` and than :data:`MIN_GAIN_REL` of the gap;
@@ -65,7 +65,7 @@ class Tried:
     before, after : (F,) held-out gap per fold without and with it (held-out seeds)
     before_fit, after_fit : the same with the fitting seeds (the ranking's second opinion)
     past_cut : a grid cut to part of its values (a later round's) was fitted against a cut
-        end in some fold (:func:`pulled_past_cut`)
+        end in some fold (:func:`.fit.pulled_past_cut`)
     """
 
     cand: fx.Candidate
@@ -237,7 +237,7 @@ def _rounds(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
     """The greedy rounds from ``base`` (a generator): each adds the best acceptable
     candidate. ``first``: the first round's candidates as already tried, and the one to add
     first (the competing path of :func:`select`); ``full``: the reported selection (its fits'
-    intervals hold what refits pick, :func:`fit_final`).
+    intervals hold what refits pick, :func:`.fit.fit_final`).
 
     Returns (steps, rounds, table, held-out gap after, the first round's (tried, verdicts))
     """
@@ -373,7 +373,7 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
     candidates : profile table -> (candidates, skipped)
     k_folds : folds at most
     full : the reported selection: also measure the per-PRN tracking disagreement, and widen
-        the fits' intervals by refits (:func:`fit_final`)
+        the fits' intervals by refits (:func:`.fit.fit_final`)
     """
     folds = make_folds(units, k_folds, sim.design.unit_keys())
     train = [[u for u in units if u not in f] for f in folds]
