@@ -257,3 +257,22 @@ def test_the_model_of_many_workers_plays_their_clock():
         jobs.model(None)
     assert wall_s == pytest.approx(0.3, abs=0.03)
     assert serial_s == pytest.approx(0.15, abs=0.03)
+
+
+def test_the_model_plays_a_thread_beside_the_main_process():
+    """Work handed to the judging thread where workers are modelled runs off the main
+    process's clock: its result is ready at its start (when handed over, or when the thread's
+    previous work ended) plus its own time, and waiting for it is not serial."""
+    jobs.model(2)
+    try:
+        first = jobs.model_aside(_nap, 0.2)  # ready at 0.2 s
+        second = jobs.model_aside(_nap, 0.1)  # queued behind it: ready at 0.3 s
+        time.sleep(0.05)  # the main process's own work meanwhile
+        assert first.result() == 0.2
+        assert jobs.model_times_s()[0] == pytest.approx(0.2, abs=0.03)
+        assert second.result() == 0.1
+        wall_s, serial_s = jobs.model_times_s()
+    finally:
+        jobs.model(None)
+    assert wall_s == pytest.approx(0.3, abs=0.03)
+    assert serial_s == pytest.approx(0.05, abs=0.03)

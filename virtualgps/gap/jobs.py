@@ -408,18 +408,19 @@ def model(workers: int | None) -> None:
     """Model ``workers`` workers on this machine (None: stop modelling), for
     ``tools/bench_gap.py --model``: jobs run in this process, when submitted, each timing
     itself; the model's clock advances by the main process's own time between its calls to a
-    queue (its serial work) and, when it waits, to the next modelled job's end. Jobs are
-    shaped for ``workers`` (:func:`worker_count`); :func:`model_times_s` gives the modelled
-    run's wall time. It counts pickling jobs and results (the main process's part of sending
-    them) but leaves out what more cores cost each job (memory bandwidth, a shared cache) and
-    the pool's pipes: an upper bound on the speed-up."""
+    queue (its serial work) and, when it waits, to the next modelled job's end. Jobs are shaped
+    for ``workers`` (:func:`worker_count`); :func:`model_times_s` gives the modelled run's wall
+    time. Work handed to a thread beside the main process runs off its clock
+    (:func:`model_aside`). It counts pickling jobs and results (the main process's part of
+    sending them) but leaves out what more cores cost each job (memory bandwidth, a shared
+    cache) and the pool's pipes: an upper bound on the speed-up."""
     _MODEL.clear()
     while _LIMITS:  # (the BLAS threads this process had before modelling)
         _LIMITS.pop().restore_original_limits()
     if workers:
         prepare_worker()  # (jobs run here: one BLAS thread, as in a worker)
         _MODEL.update(workers=workers, free=[0.0] * workers, now=0.0, serial=0.0, order=0,
-                      mark=time.perf_counter())
+                      aside=0.0, mark=time.perf_counter())
 
 
 def model_times_s() -> tuple[float, float]:
@@ -441,7 +442,37 @@ def _model_resume() -> None:
     _MODEL["mark"] = time.perf_counter()
 
 
+class _AsideDone:
+    """A result :func:`model_aside` computed, ready at a time of the model's clock."""
+
+    def __init__(self, value: Any, ready_s: float) -> None:
+        self._value, self._ready_s = value, ready_s
+
+    def result(self) -> Any:
+        """The value, once the model's clock has reached its time (waiting is not serial)."""
+        _MODEL["now"] = max(_model_clock(), self._ready_s)
+        _model_resume()
+        return self._value
+
+
+def model_aside(fn: Callable[..., Any], *args: Any) -> _AsideDone:
+    """Model one thread beside the main process (the gap tool judges its located gaps in one
+    while the workers run): ``fn(*args)`` runs here, now, off the main process's clock, as if
+    the thread had started it when it was handed over, or when its previous call ended; its
+    result is ready at that start plus its own run time (what a thread that mostly needs a
+    core while the main process waits on the workers would take). Returns an object whose
+    ``result()`` advances the model's clock to that time."""
+    now = _model_clock()
+    t0 = time.perf_counter()
+    value = fn(*args)
+    ready = max(now, _MODEL["aside"]) + time.perf_counter() - t0
+    _MODEL["aside"] = ready
+    _model_resume()
+    return _AsideDone(value, ready)
+
+
 def modelling() -> bool:
-    """Whether :func:`model` is modelling workers (the gap tool then judges its located gaps
-    in the main thread: a thread beside jobs run in this process would share their time)."""
+    """Whether :func:`model` is modelling workers (the gap tool then hands its located gaps to
+    :func:`model_aside` instead of a thread: a thread beside jobs run in this process would
+    share their time)."""
     return bool(_MODEL)

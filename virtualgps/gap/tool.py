@@ -10,7 +10,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,7 @@ from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
 from virtualgps.gap.ingest import ingest_notes
-from virtualgps.gap.jobs import modelling, start_workers, unshare
+from virtualgps.gap.jobs import model_aside, modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.observed import Obs, RunView
 from virtualgps.gap.runs import prepare_runs, sim_obs
@@ -250,9 +250,9 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     # (forked before the located gaps' thread starts: see start_workers)
     start_workers(opts.jobs, opts.dask)
     # The located gaps are judged, and the baseline's figures' arrays made, in a thread while
-    # the workers simulate the candidates (not where the benchmark models workers in this
-    # process: the thread would share their time).
-    judging = ThreadPoolExecutor(1) if not modelling() else _Here()
+    # the workers simulate the candidates (where the benchmark models workers in this process,
+    # a thread would share their time: the model plays it, jobs.model_aside).
+    judging = ThreadPoolExecutor(1) if not modelling() else _Aside()
     where_job = judging.submit(dg.where_table, runs, base_sims)
     figures_job = judging.submit(figure_data, runs, base_sims)
     # Guards as long as the real error's correlation time: held-out real data then share no
@@ -301,13 +301,11 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     return report, figures, final_table
 
 
-class _Here:
-    """An executor that runs each call at once, in this thread."""
+class _Aside:
+    """The judging thread where the benchmark models workers (:func:`model_aside`)."""
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
-        fut: Future = Future()
-        fut.set_result(fn(*args))
-        return fut
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
+        return model_aside(fn, *args)
 
     def shutdown(self) -> None:
         pass
