@@ -449,8 +449,12 @@ class _AsideDone:
         self._value, self._ready_s = value, ready_s
 
     def result(self) -> Any:
-        """The value, once the model's clock has reached its time (waiting is not serial)."""
-        _MODEL["now"] = max(_model_clock(), self._ready_s)
+        """The value, once the model's clock has reached its time. Waiting for it counts as
+        serial, as in a real run, whose serial rest is all but its waits for jobs."""
+        now = _model_clock()
+        if self._ready_s > now:
+            _MODEL["serial"] += self._ready_s - now
+            _MODEL["now"] = self._ready_s
         _model_resume()
         return self._value
 
@@ -461,7 +465,7 @@ def model_aside(fn: Callable[..., Any], *args: Any) -> _AsideDone:
     the thread had started it when it was handed over, or when its previous call ended; its
     result is ready at that start plus its own run time (what a thread that mostly needs a
     core while the main process waits on the workers would take). Returns an object whose
-    ``result()`` advances the model's clock to that time."""
+    ``result()`` advances the model's clock to that time (the wait is serial time)."""
     now = _model_clock()
     t0 = time.perf_counter()
     value = fn(*args)
