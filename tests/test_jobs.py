@@ -265,9 +265,10 @@ def test_the_model_plays_a_thread_beside_the_main_process():
     previous work ended) plus its own time. The main process's wait for it is serial (not a
     wait for jobs), as a real run counts it."""
     jobs.model(2)
+    thread = jobs.ModelThread()
     try:
-        first = jobs.model_aside(_nap, 0.2)  # ready at 0.2 s
-        second = jobs.model_aside(_nap, 0.1)  # queued behind it: ready at 0.3 s
+        first = thread.submit(_nap, 0.2)  # ready at 0.2 s
+        second = thread.submit(_nap, 0.1)  # queued behind it: ready at 0.3 s
         time.sleep(0.05)  # the main process's own work meanwhile
         assert first.result() == 0.2
         assert jobs.model_times_s()[0] == pytest.approx(0.2, abs=0.03)
@@ -281,7 +282,7 @@ def test_the_model_plays_a_thread_beside_the_main_process():
     jobs.model(2)
     try:
         q = jobs.JobQueue(_nap, jobs=1)
-        done = jobs.model_aside(_nap, 0.1)
+        done = jobs.ModelThread().submit(_nap, 0.1)
         q.submit([("a", 0.3)])
         q.wait()
         assert done.result() == 0.1

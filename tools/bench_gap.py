@@ -24,8 +24,8 @@ are back by that clock). Each job and each result is pickled and unpickled, on t
 process's clock or the job's as in a pool. It leaves out what more cores cost each job (memory
 bandwidth, a shared cache) and the pool's pipes, so it bounds the speed-up from above. The
 located gaps, judged in a thread beside the workers in a real run, are played as such a thread
-(off the main process's clock, :func:`virtualgps.gap.jobs.model_aside`); ``--workers 2 --model
-2`` shows how close the model comes on this machine's cores.
+(off the main process's clock, :class:`virtualgps.gap.jobs.ModelThread`); ``--workers 2
+--model 2`` shows how close the model comes on this machine's cores.
 Measure on the cores themselves where you have them.
 
 ``--profile-jobs DIR`` profiles the modelled runs' jobs alone (they run in this process there):

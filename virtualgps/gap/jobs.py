@@ -411,7 +411,7 @@ def model(workers: int | None) -> None:
     queue (its serial work) and, when it waits, to the next modelled job's end. Jobs are shaped
     for ``workers`` (:func:`worker_count`); :func:`model_times_s` gives the modelled run's wall
     time. Work handed to a thread beside the main process runs off its clock
-    (:func:`model_aside`). It counts pickling jobs and results (the main process's part of
+    (:class:`ModelThread`). It counts pickling jobs and results (the main process's part of
     sending them) but leaves out what more cores cost each job (memory bandwidth, a shared
     cache) and the pool's pipes: an upper bound on the speed-up."""
     _MODEL.clear()
@@ -443,7 +443,7 @@ def _model_resume() -> None:
 
 
 class _AsideDone:
-    """A result :func:`model_aside` computed, ready at a time of the model's clock."""
+    """A result :class:`ModelThread` computed, ready at a time of the model's clock."""
 
     def __init__(self, value: Any, ready_s: float) -> None:
         self._value, self._ready_s = value, ready_s
@@ -459,24 +459,30 @@ class _AsideDone:
         return self._value
 
 
-def model_aside(fn: Callable[..., Any], *args: Any) -> _AsideDone:
-    """Model one thread beside the main process (the gap tool judges its located gaps in one
-    while the workers run): ``fn(*args)`` runs here, now, off the main process's clock, as if
-    the thread had started it when it was handed over, or when its previous call ended; its
-    result is ready at that start plus its own run time (what a thread that mostly needs a
-    core while the main process waits on the workers would take). Returns an object whose
-    ``result()`` advances the model's clock to that time (the wait is serial time)."""
-    now = _model_clock()
-    t0 = time.perf_counter()
-    value = fn(*args)
-    ready = max(now, _MODEL["aside"]) + time.perf_counter() - t0
-    _MODEL["aside"] = ready
-    _model_resume()
-    return _AsideDone(value, ready)
+class ModelThread:
+    """The model of one thread beside the main process (the gap tool judges its located gaps in
+    one while the workers run), used in place of a one-thread executor while :func:`model`
+    models workers: a thread beside jobs run in this process would share their time."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> _AsideDone:
+        """Run ``fn(*args)`` here, now, off the main process's clock, as if the thread had
+        started it when it was handed over, or when its previous call ended; its result is
+        ready at that start plus its own run time (what a thread that mostly needs a core
+        while the main process waits on the workers would take). Returns an object whose
+        ``result()`` advances the model's clock to that time (the wait is serial time)."""
+        now = _model_clock()
+        t0 = time.perf_counter()
+        value = fn(*args)
+        ready = max(now, _MODEL["aside"]) + time.perf_counter() - t0
+        _MODEL["aside"] = ready
+        _model_resume()
+        return _AsideDone(value, ready)
+
+    def shutdown(self) -> None:
+        """(nothing runs after :meth:`submit` returns)"""
 
 
 def modelling() -> bool:
-    """Whether :func:`model` is modelling workers (the gap tool then hands its located gaps to
-    :func:`model_aside` instead of a thread: a thread beside jobs run in this process would
-    share their time)."""
+    """Whether :func:`model` is modelling workers (the gap tool then judges its located gaps on
+    a :class:`ModelThread`)."""
     return bool(_MODEL)

@@ -26,7 +26,7 @@ from virtualgps.gap.bands import band_description
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
 from virtualgps.gap.ingest import ingest_notes
-from virtualgps.gap.jobs import model_aside, modelling, start_workers, unshare
+from virtualgps.gap.jobs import ModelThread, modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.observed import Obs, RunView
 from virtualgps.gap.runs import prepare_runs, sim_obs
@@ -251,8 +251,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     start_workers(opts.jobs, opts.dask)
     # The located gaps are judged, and the baseline's figures' arrays made, in a thread while
     # the workers simulate the candidates (where the benchmark models workers in this process,
-    # a thread would share their time: the model plays it, jobs.model_aside).
-    judging = ThreadPoolExecutor(1) if not modelling() else _Aside()
+    # a thread would share their time: the model plays it, jobs.ModelThread).
+    judging = ThreadPoolExecutor(1) if not modelling() else ModelThread()
     where_job = judging.submit(dg.where_table, runs, base_sims)
     figures_job = judging.submit(figure_data, runs, base_sims)
     # Guards as long as the real error's correlation time: held-out real data then share no
@@ -299,16 +299,6 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     unshare(keys)
     report["elapsed_s"] = time.perf_counter() - t_start
     return report, figures, final_table
-
-
-class _Aside:
-    """The judging thread where the benchmark models workers (:func:`model_aside`)."""
-
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
-        return model_aside(fn, *args)
-
-    def shutdown(self) -> None:
-        pass
 
 
 def _corr_time_s(view: RunView, err: np.ndarray) -> float:
