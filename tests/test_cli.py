@@ -461,9 +461,9 @@ def test_a_live_run_says_where_poses_go_and_when_none_has_come(tmp_path, monkeyp
 def test_a_run_whose_line_cannot_carry_its_rate_says_so_and_counts_the_loss(tmp_path, caplog):
     """10 Hz at 9600 baud with a client reading: the line warning, and the closing line counts
     the epochs dropped unread; a run nobody reads counts none (nobody missed them)."""
-    from virtualgps.run import daemon
+    from virtualgps.run import live
 
-    daemon._LINE_WARNED.clear()
+    live._LINE_WARNED.clear()
     link = tmp_path / "gps"
     got = bytearray()
 

@@ -15,7 +15,7 @@ import pytest
 from virtualgps.device import nmea
 from virtualgps.receiver.definition import Georef
 from virtualgps.receiver.profiles import load_profile
-from virtualgps.run import daemon, poseproviders
+from virtualgps.run import daemon, live, poseproviders
 from virtualgps.run.config import BUNDLED_SCENES_DIR, make_receiver, resolve
 from virtualgps.sky.ephemeris import load_tle
 from virtualgps.sky.scene import load_scene
@@ -99,14 +99,14 @@ def test_live_loop_fix_rules_and_epoch_times(receiver):
 
 
 def test_a_line_too_slow_for_the_epochs_is_warned_of_once(monkeypatch, caplog):
-    monkeypatch.setattr(daemon, "_LINE_WARNED", set())
+    monkeypatch.setattr(live, "_LINE_WARNED", set())
     sizes = [400] * 10  # 400 bytes at 10 Hz: 40,000 bits a second, 8N1
-    with caplog.at_level("WARNING", logger="virtualgps.run.daemon"):
-        assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)
-        assert daemon.warn_if_line_too_slow(sizes, 10.0, 38400)  # too slow, but said already
-        assert not daemon.warn_if_line_too_slow(sizes, 10.0, 57600)
-        assert not daemon.warn_if_line_too_slow(sizes, 1.0, 9600)
-        assert not daemon.warn_if_line_too_slow(sizes, 10.0, None)  # a file: no line
+    with caplog.at_level("WARNING", logger="virtualgps.run.live"):
+        assert live.warn_if_line_too_slow(sizes, 10.0, 38400)
+        assert live.warn_if_line_too_slow(sizes, 10.0, 38400)  # too slow, but said already
+        assert not live.warn_if_line_too_slow(sizes, 10.0, 57600)
+        assert not live.warn_if_line_too_slow(sizes, 1.0, 9600)
+        assert not live.warn_if_line_too_slow(sizes, 10.0, None)  # a file: no line
     warnings = [r.getMessage() for r in caplog.records]
     assert len(warnings) == 1
     assert "needs 40000 baud" in warnings[0] and "carries 96 %" in warnings[0]
@@ -116,14 +116,14 @@ def test_a_line_too_slow_for_the_epochs_is_warned_of_once(monkeypatch, caplog):
 def test_the_live_loop_warns_when_its_line_cannot_carry_the_rate(receiver, monkeypatch, caplog,
                                                                  baud, warned):
     cfg, rx = receiver  # 10 Hz
-    monkeypatch.setattr(daemon, "_LINE_WARNED", set())
+    monkeypatch.setattr(live, "_LINE_WARNED", set())
     clock = poseproviders.SimClock(START)
     good = json.dumps({"x": 0.0, "y": 0.0, "z": 1.5}).encode()
     provider = poseproviders.LiveProvider(FakeSource(clock, [(clock.now_unix_s(), good)]),
                                           rx.georef, clock, cfg.profile.pose_timeout_s)
     sink = Sink()
     sink.baud = baud
-    with caplog.at_level("WARNING", logger="virtualgps.run.daemon"):
+    with caplog.at_level("WARNING", logger="virtualgps.run.live"):
         daemon.run_daemon(rx, provider, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea),
                           clock, np.random.default_rng(0), threading.Event(), max_epochs=12)
     sizes = [len(e) for e in sink.epochs[1:]]
@@ -142,7 +142,7 @@ def test_a_fix_interval_the_new_baud_cannot_carry_is_refused(receiver):
     sink = Sink()
     client = [nmea.format_sentence(c).encode() for c in ("PMTK251,9600", "PMTK220,100")]
     sink.read_available = lambda: client.pop(0) if client else b""
-    member = daemon.LiveReceiver(rx, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea), clock,
+    member = live.LiveReceiver(rx, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea), clock,
                                  np.random.default_rng(0))
     lap = poseproviders.demo_lap(np.array([[0, 0, 1.5], [40, 0, 1.5]]), 1.4)
     walk = poseproviders.LoopProvider(lap, START, 2.0)
@@ -178,14 +178,14 @@ def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     _, rx = receiver
     on = replace(mtk.default_settings(("GGA",), {}, 1.0, 38400), dgps_mode=2, sbas_enabled=True,
                  static_nav_mps=0.8)
-    rx2 = daemon.apply_link_settings(rx, on)
+    rx2 = live.apply_link_settings(rx, on)
     assert rx2.profile.sbas.enabled and rx2.profile.static_hold.enabled
     assert rx2.profile.static_hold.threshold_mps == 0.8
     assert rx2.ephemeris is rx.ephemeris and rx2.georef == rx.georef
     off = replace(on, sbas_enabled=False, static_nav_mps=0.0)
-    rx3 = daemon.apply_link_settings(rx2, off)
+    rx3 = live.apply_link_settings(rx2, off)
     assert not rx3.profile.sbas.enabled and not rx3.profile.static_hold.enabled
-    assert daemon.apply_link_settings(rx3, off) is rx3  # nothing to change
+    assert live.apply_link_settings(rx3, off) is rx3  # nothing to change
 
 
 _HANDLER_INSIDE_SET = """

@@ -22,7 +22,7 @@ import pytest
 from virtualgps.device import nmea
 from virtualgps.exceptions import ConfigError
 from virtualgps.poses import posesource
-from virtualgps.run import daemon, poseproviders
+from virtualgps.run import daemon, live, poseproviders
 from virtualgps.run.config import BUNDLED_SCENES_DIR, load_scene_for, make_receiver, resolve
 from virtualgps.run.fleet.members import fleet_members
 from virtualgps.sky.ephemeris import load_tle
@@ -138,7 +138,7 @@ def run_members(campus, specs, n_epochs):
             prof = load_profile(cfg.profile.name, over, flag_overrides={"rate_hz": 10.0})
             rxs[key] = make_receiver(replace(cfg, profile=prof), scene, georef, eph, START)
         rx = rxs[key]
-        members.append(daemon.LiveReceiver(
+        members.append(live.LiveReceiver(
             rx, Sink(), nmea.NmeaFormat.from_dict(rx.profile.nmea), clock,
             np.random.default_rng(seed), receiver_id=rid, t_first_unix_s=START))
     provider = poseproviders.ReceiverPoses({rid: walk(rid) for rid, _, _ in specs})
@@ -252,7 +252,7 @@ def test_a_restart_of_one_receiver_leaves_the_others_as_they_were(campus):
     cold = nmea.format_sentence("PMTK103").encode("ascii")
 
     def members(ids):
-        return [daemon.LiveReceiver(
+        return [live.LiveReceiver(
             rx, CommandSink(150, cold) if rid == 1 else Sink(), fmt, clock,
             np.random.default_rng(30 + rid), receiver_id=rid, t_first_unix_s=START)
             for rid in ids]

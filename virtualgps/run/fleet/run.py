@@ -23,7 +23,7 @@ from virtualgps.device.serialport import SerialDevice
 from virtualgps.exceptions import ConfigError
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import posesource
-from virtualgps.run import config, daemon, poseproviders
+from virtualgps.run import config, live, poseproviders
 from virtualgps.run.fleet.limits import check_limits, pty_error
 from virtualgps.run.fleet.members import Member, fleet_members
 from virtualgps.run.fleet.ptyloop import PtyLoop
@@ -51,7 +51,7 @@ class Fleet:
     links : each receiver's link as given (None on a serial port)
     """
 
-    receivers: list[daemon.LiveReceiver]
+    receivers: list[live.LiveReceiver]
     provider: poseproviders.PoseProvider
     waiter: PtyLoop | None
     devices: list
@@ -200,7 +200,7 @@ def build_fleet(
                              t0 if t_start is None else t_start, pose_source)
         for m, dev in zip(members, devices if serial_port else waiter.devices, strict=True):
             key = (m.profile, m.baud)
-            receivers.append(daemon.LiveReceiver(
+            receivers.append(live.LiveReceiver(
                 rxs[key], dev, fmts[key], clock,
                 np.random.default_rng(m.seed), receiver_id=m.receiver_id,
                 antenna_offset_enu_m=np.array(m.antenna_offset_enu_m), t_first_unix_s=t0))
@@ -324,7 +324,7 @@ class RunSummary:
         )
 
 
-def log_links(receivers: list[daemon.LiveReceiver]) -> None:
+def log_links(receivers: list[live.LiveReceiver]) -> None:
     """One line per receiver whose client used its command link: what it set."""
     for r in receivers:
         link = r.stats.link
