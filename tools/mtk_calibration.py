@@ -51,7 +51,8 @@ from virtualgps.gap.ingest import take_epochs
 from virtualgps.gap.metrics import ELEVATION_BINS_DEG, median_position, summary
 from virtualgps.poses import pose
 from virtualgps.receiver.definition import Georef, Receiver
-from virtualgps.receiver.profiles import Profile, load_profile
+from virtualgps.receiver.params import Profile
+from virtualgps.receiver.profiles import load_profile
 from virtualgps.receiver.skyview import compute_sky
 from virtualgps.run.replay import epoch_grid, run_replay, track_in_scene
 from virtualgps.sky.ephemeris import Constellation, load_tle

@@ -20,7 +20,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from virtualgps.receiver.profiles import CorrelatedErrorParams, build_profile, merge
+from virtualgps.receiver.params import CorrelatedErrorParams
+from virtualgps.receiver.profiles import build_profile, merge
 
 # Every effect name of DESIGN section 6 (``sky_mask`` is the learned part of ``foliage``).
 EFFECT_NAMES = (
@@ -302,7 +303,7 @@ def _constellations(profile: dict, seen: str, held: str) -> Candidate | str | No
     return Candidate("constellations", (), lambda p: {"constellations": dict(on)}, ("systems",))
 
 
-# The UERE budget's textbook values (profiles.DopErrorParams), scaled as a whole by dop_error.
+# The UERE budget's textbook values (params.DopErrorParams), scaled as a whole by dop_error.
 UERE_M = {"sis_m": 0.8, "iono_zenith_m": 2.0, "tropo_zenith_m": 0.2, "rx_noise_m": 0.5,
           "multipath_a_m": 0.13, "multipath_b_m": 0.53}
 GEOMETRIC = (0.25, 0.35, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)  # sqrt(2) steps about 1

@@ -22,7 +22,13 @@ import numpy as np
 
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Georef, Receiver
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import (
+    ConstellationsParams,
+    FoliageParams,
+    NlosParams,
+    Profile,
+    SkyParams,
+)
 from virtualgps.receiver.skyview import Sky, compute_sky
 from virtualgps.receiver.state import initial_state, running_state
 
@@ -271,12 +277,6 @@ def geometry_job(setup: RunSetup) -> Geometry:
     A bare receiver (no effects; foliage neither blocks nor attenuates) gives the geometry, so
     it is the same whatever profile is under test.
     """
-    from virtualgps.receiver.profiles import (
-        ConstellationsParams,
-        FoliageParams,
-        NlosParams,
-        SkyParams,
-    )
     from virtualgps.sky import systems as sy
 
     prof = Profile(name="geometry", sky=SkyParams(elevation_mask_deg=0.0, foliage="ignore"),

@@ -19,7 +19,7 @@ from virtualgps.gap.jobs import map_jobs
 from virtualgps.gap.observed import Obs, RunView, position_quantum_min, printed_step, quantize
 from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, errors_enu
 from virtualgps.receiver.definition import Georef
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 from virtualgps.sky import systems
 
 SCENE_REACH_M = 5000.0

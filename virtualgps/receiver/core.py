@@ -27,7 +27,7 @@ from virtualgps import geodesy
 from virtualgps.receiver import errors, signals
 from virtualgps.receiver.definition import Receiver
 from virtualgps.receiver.output import carry_held_height, hold_altitude, output_stage
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 from virtualgps.receiver.records import (
     MODE_2D,
     MODE_3D,

@@ -12,7 +12,7 @@ import numpy as np
 
 from virtualgps import geodesy
 from virtualgps.receiver import walls
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 from virtualgps.sky.satnodes import SatNodes
 
 

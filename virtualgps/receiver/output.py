@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from virtualgps.receiver import errors
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 from virtualgps.receiver.solution import (
     PositionErrors,
 )

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from virtualgps.receiver import errors
-from virtualgps.receiver.profiles import CorrelatedErrorParams, Profile
+from virtualgps.receiver.params import CorrelatedErrorParams, Profile
 from virtualgps.receiver.skyview import Sky
 from virtualgps.receiver.state import ReceiverState
 from virtualgps.sky import systems

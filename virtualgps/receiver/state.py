@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,8 @@ from virtualgps.bundled import bundled_dir
 from virtualgps.exceptions import ConfigError, VirtualGPSError
 from virtualgps.geodesy import geoid_sep_m
 from virtualgps.receiver.definition import Georef, Receiver
-from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, Profile, load_profile
+from virtualgps.receiver.params import Profile
+from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, load_profile
 from virtualgps.sky import ephemeris as eph
 from virtualgps.sky import systems
 from virtualgps.sky.skytime import choose_tle_set

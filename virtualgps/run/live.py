@@ -20,7 +20,7 @@ from virtualgps.device import mtk, nmea
 from virtualgps.device.ubx.link import UbxLink
 from virtualgps.device.ubx.settings import default_settings as ubx_defaults
 from virtualgps.receiver.definition import Receiver
-from virtualgps.receiver.profiles import Profile
+from virtualgps.receiver.params import Profile
 from virtualgps.receiver.state import ReceiverRows, ReceiverState, initial_state, restart
 from virtualgps.run.poseproviders import SimClock
 from virtualgps.sky import systems as sky_systems
