@@ -72,6 +72,52 @@ def test_position_quantum_is_the_logs_printed_resolution():
     assert observed.position_quantum_min(lat, lat) == pytest.approx(1e-4)
 
 
+def _read_fixes(lats, lons) -> tuple[np.ndarray, np.ndarray]:
+    """Fixes printed as GGA fields (ddmm.mmmm, hemisphere) and read back by the log reader."""
+    from datetime import date
+
+    from virtualgps.device.nmea import nmea_epochs_from_lines
+    from virtualgps.device.nmea.sentence import format_sentence
+
+    lines = [format_sentence(f"GPGGA,1200{i:02d}.00,{la},{lh},{lo},{oh},1,08,1.0,10.0,M,0.0,M,,")
+             for i, ((la, lh), (lo, oh)) in enumerate(zip(lats, lons, strict=True))]
+    ep = nmea_epochs_from_lines(lines, default_date=date(2020, 5, 14))
+    return ep.lat_deg, ep.lon_deg
+
+
+@pytest.mark.parametrize(("lats", "lons", "quantum"), [
+    # one fix printed throughout (an ideal receiver, a held static fix), south and east
+    ([("2609.8760", "S")] * 50, [("07629.4120", "E")] * 50, 1e-3),
+    # one fix of a logger printing two decimals, west
+    ([("4807.04", "N")], [("12205.00", "W")], 1e-2),
+    # the same latitude throughout, longitude stepping by its last digit
+    ([("3725.4147812", "N")] * 3, [("12205.6470745", "W"), ("12205.6470746", "W"),
+                                   ("12205.6470744", "W")], 1e-7),
+    # two fixes far apart: never coarser than NMEA prints (ddmm.mm)
+    ([("4807.0400", "N"), ("4807.9400", "N")], [("01131.0000", "E")] * 2, 1e-2),
+])
+def test_a_log_that_never_steps_reads_its_resolution_from_its_digits(lats, lons, quantum):
+    """Without a step between fixes in latitude or longitude the resolution is read from the
+    digits, and rounding fixes to it moves them by at most half a step (a log of one repeated
+    fix was once read as printing to 10,000 arc-minutes, and its simulation rounded thousands
+    of km away)."""
+    lat, lon = _read_fixes(lats, lons)
+    q = observed.position_quantum_min(np.append(lat, np.nan), np.append(lon, np.nan))
+    assert q == pytest.approx(quantum)
+    sim = lat[:1] + np.array([0.0, 3e-7, -2e-6])  # simulated fixes near the first
+    obs = observed.Obs(lat_deg=sim[None], lon_deg=np.full((1, 3), lon[0]),
+                       alt_hae_m=np.zeros((1, 3)), quality=np.ones((1, 3), np.int16),
+                       hdop=np.ones((1, 3)), sats_used=np.full((1, 3), 8.0),
+                       speed_mps=np.zeros((1, 3)), tracked=np.zeros((1, 3, 1), bool),
+                       cn0_dbhz=np.full((1, 3, 1), np.nan), used=np.zeros((1, 3, 1), bool))
+    moved_min = np.abs(observed.quantize(obs, q).lat_deg - sim) * 60.0
+    assert np.all(moved_min <= q / 2 + 1e-12)
+
+
+def test_a_log_without_a_fix_prints_no_position_resolution():
+    assert observed.position_quantum_min(np.full(5, np.nan), np.full(5, np.nan)) == 0.0
+
+
 # --- candidates and profiles ---------------------------------------------------------------------
 
 

@@ -99,16 +99,39 @@ class RunView:
         return np.hypot(v[:, 0], v[:, 1])
 
 
+# The printed resolutions of a position, arc-minutes: NMEA writes minutes with 2 decimals at the
+# coarsest (ddmm.mm, 18 m) and phones with 6 or 7.
+QUANTA_MIN = tuple(10.0 ** -k for k in range(2, 8))
+
+
 def position_quantum_min(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
-    """The resolution a log prints positions with, in arc-minutes (a power of ten): the
-    smallest step between its fixes (MTK's ``ddmm.mmmm``: 1e-4; phones print 6 or 7 decimals).
-    0.0 when it cannot be told (fewer than two distinct fixes)."""
-    m = np.concatenate([np.asarray(lat_deg, float), np.asarray(lon_deg, float)]) * 60.0
-    d = np.abs(np.diff(m[np.isfinite(m)]))
+    """The resolution a log prints positions with, in arc-minutes (a power of ten, at most
+    1e-2): the smallest step between its fixes in latitude or in longitude (MTK's
+    ``ddmm.mmmm``: 1e-4; phones print 6 or 7 decimals). A log whose fixes never step (one fix,
+    or one held throughout: an ideal or held static fix) gives the coarsest power of ten of
+    which its minutes are a multiple, 1e-2 to 1e-7. 0.0 without a fix.
+
+    (Steps taken across latitude and longitude together, as before, made a log of one repeated
+    fix print to 10,000 arc-minutes: every simulated fix was then rounded thousands of
+    kilometres away.)
+
+    lat_deg, lon_deg : (n,) float, degrees, NaN without a fix
+    """
+    minutes = [np.asarray(x, float) * 60.0 for x in (lat_deg, lon_deg)]
+    minutes = [m[np.isfinite(m)] for m in minutes]
+    d = np.concatenate([np.abs(np.diff(m)) for m in minutes])
     d = d[d > 1e-9]
-    if d.size == 0:
+    if d.size:
+        return float(min(10.0 ** np.round(np.log10(d.min())), QUANTA_MIN[0]))
+    m = np.concatenate(minutes)
+    if m.size == 0:
         return 0.0
-    return float(10.0 ** np.round(np.log10(d.min())))
+    for q in QUANTA_MIN:
+        r = m / q
+        # (minutes made degrees by the reader and minutes again here are off by ~1e-12)
+        if np.all(np.abs(r - np.round(r)) < 1e-3):
+            return q
+    return 0.0
 
 
 def printed_step(values: np.ndarray, max_decimals: int = 6) -> float:
