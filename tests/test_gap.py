@@ -90,17 +90,21 @@ def _read_fixes(lats, lons) -> tuple[np.ndarray, np.ndarray]:
     ([("2609.8760", "S")] * 50, [("07629.4120", "E")] * 50, 1e-3),
     # one fix of a logger printing two decimals, west
     ([("4807.04", "N")], [("12205.00", "W")], 1e-2),
-    # the same latitude throughout, longitude stepping by its last digit
-    ([("3725.4147812", "N")] * 3, [("12205.6470745", "W"), ("12205.6470746", "W"),
-                                   ("12205.6470744", "W")], 1e-7),
-    # two fixes far apart: never coarser than NMEA prints (ddmm.mm)
+    # six fixes printed to 1e-6 that step by ~1e-3 (gpsd's mtk-3301.log)
+    ([("5212.982135", "N"), ("5212.981473", "N"), ("5212.982641", "N"), ("5212.981832", "N"),
+      ("5212.982003", "N"), ("5212.981120", "N")],
+     [("00653.101394", "E"), ("00653.102458", "E"), ("00653.105897", "E"),
+      ("00653.104686", "E"), ("00653.103301", "E"), ("00653.102207", "E")], 1e-6),
+    # a phone's seven decimals, stepping by far more
+    ([("3725.4147812", "N"), ("3725.4148423", "N")],
+     [("12205.6470745", "W"), ("12205.6472189", "W")], 1e-7),
+    # two fixes far apart
     ([("4807.0400", "N"), ("4807.9400", "N")], [("01131.0000", "E")] * 2, 1e-2),
 ])
-def test_a_log_that_never_steps_reads_its_resolution_from_its_digits(lats, lons, quantum):
-    """Without a step between fixes in latitude or longitude the resolution is read from the
-    digits, and rounding fixes to it moves them by at most half a step (a log of one repeated
-    fix was once read as printing to 10,000 arc-minutes, and its simulation rounded thousands
-    of km away)."""
+def test_position_quantum_is_read_from_the_digits_not_the_steps(lats, lons, quantum):
+    """Every fix lies on the printed grid, however few fixes or steps there are; and rounding
+    fixes to it moves them by at most half a step (a log of one repeated fix was once read as
+    printing to 10,000 arc-minutes, and its simulation rounded thousands of km away)."""
     lat, lon = _read_fixes(lats, lons)
     q = observed.position_quantum_min(np.append(lat, np.nan), np.append(lon, np.nan))
     assert q == pytest.approx(quantum)
@@ -152,6 +156,39 @@ def test_candidates_are_the_effects_a_profile_lacks_and_build_valid_profiles():
     for c in cands:
         for pt in (c.grid[0], c.grid[-1], c.grid[c.default_index]):
             build_profile(fx.apply(usarsim, pt))  # every grid point is a valid profile
+
+
+def _tried(before: list[float], after: list[float]):
+    from virtualgps.gap import select
+
+    b, a = np.array(before), np.array(after)
+    return select.Tried(cand=fx.Candidate("multipath", (), lambda p: {}, ()), fold_overrides=[],
+                        fold_points=[], before=b, after=a, before_fit=b, after_fit=a - 0.01,
+                        metrics_before={}, metrics_after={})
+
+
+def test_acceptance_does_not_jump_as_a_group_crosses_the_flat_threshold():
+    """The held-out gain over the groups an effect changes is continuous in each group's
+    change: a group changed by just under FLAT_MIN counts almost as one changed by just over
+    it (counted whole or not at all, such a group turned a gain under 0.1 over three groups
+    into one over 0.1 over two); a start-up that leaves the other groups unchanged is judged
+    on the group it changes, undiluted."""
+    from virtualgps.gap import select
+
+    flat = fit.FLAT_MIN
+    gains = [0.13, 0.09, 0.0]  # a mean over the first two of 0.11, over three 0.073
+    verdicts = []
+    for third in (flat * 0.999, flat * 1.001):
+        before = [1.0, 1.0, 1.0]
+        after = [1.0 - gains[0], 1.0 - gains[1], 1.0 - third]
+        verdicts.append(select.acceptable(_tried(before, after), 1.0)[0])
+    assert verdicts[0] == verdicts[1] is False
+    # a start-up: one group changed, the others untouched
+    ok, why = select.acceptable(_tried([1.0, 1.0, 1.0], [0.8, 1.0, 1.0]), 1.0)
+    assert ok, why
+    # a large help in one group, harm in two: not most of what it changes
+    ok, why = select.acceptable(_tried([1.0, 1.0, 1.0], [0.1, 1.2, 1.2]), 1.0)
+    assert not ok and "fewer than half" in why
 
 
 def test_calibrated_profile_toml_round_trips(tmp_path):

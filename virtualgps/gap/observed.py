@@ -105,25 +105,21 @@ QUANTA_MIN = tuple(10.0 ** -k for k in range(2, 8))
 
 
 def position_quantum_min(lat_deg: np.ndarray, lon_deg: np.ndarray) -> float:
-    """The resolution a log prints positions with, in arc-minutes (a power of ten, at most
-    1e-2): the smallest step between its fixes in latitude or in longitude (MTK's
-    ``ddmm.mmmm``: 1e-4; phones print 6 or 7 decimals). A log whose fixes never step (one fix,
-    or one held throughout: an ideal or held static fix) gives the coarsest power of ten of
-    which its minutes are a multiple, 1e-2 to 1e-7. 0.0 without a fix.
+    """The resolution a log prints positions with, in arc-minutes: the coarsest power of ten
+    (1e-2 to 1e-7) of which every fix's latitude and longitude minutes are a multiple (MTK's
+    ``ddmm.mmmm``: 1e-4; the GSDC phones print 1e-6). 0.0 without a fix, or finer than 1e-7.
 
-    (Steps taken across latitude and longitude together, as before, made a log of one repeated
-    fix print to 10,000 arc-minutes: every simulated fix was then rounded thousands of
-    kilometres away.)
+    Read from the digits, not from the steps between fixes: a receiver that prints one fix
+    throughout (an ideal or held static fix) has no step, and one with few fixes steps by far
+    more than its last digit (``mtk-3301.log``: six fixes printed to 1e-6, stepping by 1e-3;
+    the GSDC phones' smallest step is 1e-5). The smallest step taken across latitude and
+    longitude together, as before, made a log of one repeated fix print to 10,000
+    arc-minutes: every simulated fix was then rounded thousands of kilometres away.
 
     lat_deg, lon_deg : (n,) float, degrees, NaN without a fix
     """
-    minutes = [np.asarray(x, float) * 60.0 for x in (lat_deg, lon_deg)]
-    minutes = [m[np.isfinite(m)] for m in minutes]
-    d = np.concatenate([np.abs(np.diff(m)) for m in minutes])
-    d = d[d > 1e-9]
-    if d.size:
-        return float(min(10.0 ** np.round(np.log10(d.min())), QUANTA_MIN[0]))
-    m = np.concatenate(minutes)
+    m = np.concatenate([np.asarray(lat_deg, float), np.asarray(lon_deg, float)]) * 60.0
+    m = m[np.isfinite(m)]
     if m.size == 0:
         return 0.0
     for q in QUANTA_MIN:
