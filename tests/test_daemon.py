@@ -3,6 +3,7 @@ and after the pose timeout, malformed messages counted and skipped, the demo loo
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import select
@@ -186,6 +187,44 @@ def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     rx3 = live.apply_link_settings(rx2, off)
     assert not rx3.profile.sbas.enabled and not rx3.profile.static_hold.enabled
     assert live.apply_link_settings(rx3, off) is rx3  # nothing to change
+
+
+def test_a_u_blox_clients_pdop_mask_becomes_the_receivers():
+    """CFG-NAV5 polled at power-on shows the profile's PDOP mask (ublox-m9n: pDop 25.0, the
+    module's default); a client's CFG-VALSET of CFG-NAVSPG-OUTFIL_PDOP (the M9 way) and its
+    CFG-NAV5 pDop (the M8 way, which M9 firmware still takes) each become the receiver's
+    ``sky.pdop_mask``."""
+    pyubx2 = pytest.importorskip("pyubx2")
+    cfg = resolve({"profile": "ublox-m9n", "scene": "none"})
+    eph = load_tle(BUNDLED_SCENES_DIR.parent / "ephemeris" / "gps-ops-2017-03-28.tle")
+    rx = make_receiver(cfg, None, Georef(52.14, 11.64, 100.0), eph, START)
+    assert rx.profile.sky.pdop_mask == 25.0
+    sink = Sink()
+    nav5 = {"dyn": 1, "minEl": 1, "posFixMode": 1, "posMask": 1, "dynModel": 4, "fixMode": 3,
+            "minElev": 5, "pDop": 12.5, "tDop": 25.0, "pAcc": 100, "tAcc": 350}
+    client = [pyubx2.UBXMessage("CFG", "CFG-NAV5", pyubx2.POLL).serialize(),
+              pyubx2.UBXMessage.config_set(1, 0, [("CFG_NAVSPG_OUTFIL_PDOP", 40)]).serialize(),
+              pyubx2.UBXMessage("CFG", "CFG-NAV5", pyubx2.SET, **nav5).serialize()]
+    sink.read_available = lambda: client.pop(0) if client else b""
+    member = live.LiveReceiver(rx, sink, nmea.NmeaFormat.from_dict(cfg.profile.nmea),
+                               poseproviders.SimClock(START), np.random.default_rng(0))
+
+    def answer() -> list:
+        sink.epochs.clear()
+        member.service_client()
+        reader = pyubx2.UBXReader(io.BytesIO(b"".join(sink.epochs)),
+                                  quitonerror=pyubx2.ERR_RAISE)
+        return [msg for _, msg in reader]
+
+    polled = answer()
+    assert [m.identity for m in polled] == ["CFG-NAV5", "ACK-ACK"]
+    assert polled[0].pDop == pytest.approx(25.0)
+    masks = []
+    for _ in range(2):
+        assert [m.identity for m in answer()] == ["ACK-ACK"]
+        masks.append(member.rx.profile.sky.pdop_mask)
+    assert masks == [4.0, 12.5]
+    assert live.pdop_mask_of(0) == float("inf")
 
 
 _HANDLER_INSIDE_SET = """

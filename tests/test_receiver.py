@@ -11,7 +11,7 @@ from virtualgps import geodesy
 from virtualgps.device import nmea
 from virtualgps.receiver.core import simulate
 from virtualgps.receiver.definition import Georef, Receiver
-from virtualgps.receiver.profiles import load_profile
+from virtualgps.receiver.profiles import SettingError, load_profile
 from virtualgps.receiver.solution import dop, select_used, usarsim_sigma_m
 from virtualgps.receiver.state import ReceiverRows, ReceiverState
 
@@ -195,6 +195,31 @@ def test_mask_blocking_and_fix_rules():
     assert list(fixes.used[0]) == [True, False, True, True, True]
     assert fixes.lat_deg[0] == pytest.approx(GEOREF.lat0_deg, abs=1e-9)
     assert fixes.alt_msl_m[0] + fixes.geoid_sep_m[0] == pytest.approx(GEOREF.alt0_hae_m, abs=1e-6)
+
+
+def test_a_pdop_mask_refuses_a_fix_over_a_geometry_worse_than_it():
+    """Four satellites at 30 deg elevation, one of them 2 deg higher: up and the clock are
+    nearly one unknown (PDOP 46.96 in closed form, :func:`dop`). Without a mask (the default,
+    MTK's) the fix is made; a mask under that PDOP (u-blox's 25) refuses it, one over it keeps
+    it, and a mask never touches a good geometry."""
+    az, el = [0.0, 120.0, 240.0, 60.0], [30.0, 30.0, 30.0, 32.0]
+    want = dop(geodesy.azel_to_enu_unit(az, el), np.ones(4, bool))[2]
+    assert 46.0 < want < 48.0
+    flat = FixedSky(az, el)
+    fixes, _ = _run(load_profile("ideal"), flat)
+    assert fixes.quality[0] == 1 and fixes.pdop[0] == pytest.approx(want, rel=1e-6)
+    for mask, has_fix in ((25.0, False), (want * 0.99, False), (want * 1.01, True)):
+        fixes, _ = _run(load_profile("ideal", {"sky": {"pdop_mask": mask}}), flat)
+        assert bool(fixes.quality[0] == 1) is has_fix, mask
+        assert bool(np.isfinite(fixes.lat_deg[0])) is has_fix
+        assert bool(fixes.used[0].any()) is has_fix
+        assert fixes.in_view[0].all()  # GSV still lists what is tracked
+    good = FixedSky([0.0, 0.0, 120.0, 240.0], [90.0, 10.0, 10.0, 10.0])  # PDOP 1.82
+    fixes, _ = _run(load_profile("ideal", {"sky": {"pdop_mask": 25.0}}), good)
+    assert fixes.quality[0] == 1 and fixes.pdop[0] < 25.0
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(SettingError, match="pdop_mask"):
+            load_profile("ideal", {"sky": {"pdop_mask": bad}})
 
 
 def test_satellites_below_the_mask_are_ray_cast_too():

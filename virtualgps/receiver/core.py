@@ -246,7 +246,10 @@ def simulate(
 
     err = position_errors(prof, sky, used, n_used, z, layout, processes, rx.ephemeris.prn)
     mode = np.where(err.three_d, MODE_3D, np.where(err.two_d, MODE_2D, MODE_NONE))
-    has_fix = pose_valid & (mode > MODE_NONE) & ~starting
+    # A receiver with a PDOP mask declares no fix over a geometry worse than it (u-blox's
+    # default 25): four nearly coplanar satellites would put the least squares kilometres off.
+    # (A NaN PDOP leaves the mode as it is: the solution already said whether it has a fix.)
+    has_fix = pose_valid & (mode > MODE_NONE) & ~starting & ~(pdop > prof.sky.pdop_mask)
     mode = np.where(has_fix, mode, MODE_NONE)
     vel = np.asarray(vel_enu_mps, dtype=float)
     vel = np.where(np.isnan(vel), 0.0, vel)

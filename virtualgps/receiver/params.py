@@ -20,11 +20,16 @@ class SkyParams:
         GSA has 12 fields; multi-system receivers use more, e.g. a u-blox M8's 72 channels,
         listed 12 per system's GSA in NMEA 4.11)
     foliage : "block" (foliage-class objects block like buildings) or "ignore"
+    pdop_mask : no fix where the used satellites' PDOP is above it (inf: none, the paper's
+        model and MTK's: the shared MT3339 hour prints 3D fixes at PDOP 36.02). A u-blox
+        receiver's default is 25.0 (CFG-NAV5 pDop, CFG-NAVSPG-OUTFIL_PDOP); without one, a
+        least-squares fix over four nearly coplanar satellites lands kilometres away
     """
 
     elevation_mask_deg: float = 5.0
     max_channels: int = 12
     foliage: str = "block"
+    pdop_mask: float = float("inf")
 
 
 @dataclass(frozen=True)

@@ -337,6 +337,9 @@ def build_profile(data: dict[str, Any], source: str = "<profile>") -> Profile:  
         )
     if not 4 <= prof.sky.max_channels <= 72:
         raise SettingError("sky", "max_channels", "sky.max_channels must be in [4, 72]")
+    if not prof.sky.pdop_mask > 0.0:  # (NaN too)
+        raise SettingError("sky", "pdop_mask", "sky.pdop_mask must be positive (inf: none), "
+                           f"got {prof.sky.pdop_mask}")
     if prof.dop_error.enabled and prof.noise.model != "none":
         raise SettingError("noise", "model", 'dop_error replaces the baseline noise: set '
                            'noise.model = "none" (or disable dop_error)')

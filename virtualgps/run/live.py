@@ -78,8 +78,9 @@ def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | UbxLink | None:
 
 
 def make_ubx_link(profile) -> UbxLink:
-    """A u-blox link at the profile's power-on: its generation (``[ubx]``), baud, rate, and the
-    systems it tracks enabled (SBAS where ``[sbas]`` is on).
+    """A u-blox link at the profile's power-on: its generation (``[ubx]``), baud, rate, the
+    systems it tracks enabled (SBAS where ``[sbas]`` is on) and its PDOP mask as CFG-NAV5's
+    pDop (``sky.pdop_mask``; none as the largest, 6553.5).
 
     profile : the receiver profile; returns the UbxLink
     """
@@ -89,7 +90,15 @@ def make_ubx_link(profile) -> UbxLink:
         systems.append("SBAS")
     defaults = ubx_defaults(profile.ubx.generation, baud=profile.baud, rate_hz=profile.rate_hz,
                             gnss=tuple(systems))
-    return UbxLink(defaults)
+    mask = profile.sky.pdop_mask
+    pdop_x10 = min(round(mask * 10.0), 0xFFFF) if math.isfinite(mask) else 0xFFFF
+    return UbxLink(replace(defaults, nav5=replace(defaults.nav5, pdop_x10=pdop_x10)))
+
+
+def pdop_mask_of(pdop_x10: int) -> float:
+    """The receiver's PDOP mask (``sky.pdop_mask``) for a u-blox client's CFG-NAV5 pDop /
+    CFG-NAVSPG-OUTFIL_PDOP (x 0.1; 0 taken as no mask, as a mask of 0 would allow no fix)."""
+    return pdop_x10 / 10.0 if pdop_x10 > 0 else math.inf
 
 
 def tracking_systems(rx: Receiver, profile: Profile, enabled: frozenset[str]) -> Receiver:
@@ -345,6 +354,12 @@ class LiveReceiver:
                 self.rx = replace(self.rx, profile=replace(
                     prof, sbas=replace(prof.sbas, enabled=new.sbas_enabled)))
                 log.info("client set SBAS %s", "on" if new.sbas_enabled else "off")
+            if new.nav5.pdop_x10 != old.nav5.pdop_x10:
+                prof = self.rx.profile
+                mask = pdop_mask_of(new.nav5.pdop_x10)
+                self.rx = replace(self.rx, profile=replace(
+                    prof, sky=replace(prof.sky, pdop_mask=mask)))
+                log.info("client set the PDOP mask to %g", mask)
             if new.enabled_gnss != old.enabled_gnss:
                 self.rx = tracking_systems(self.rx, self.prof, new.enabled_gnss)
                 log.info("client set the systems tracked: %s",
