@@ -21,7 +21,8 @@ class SkyParams:
         listed 12 per system's GSA in NMEA 4.11)
     foliage : "block" (foliage-class objects block like buildings) or "ignore"
     pdop_mask : no fix where the used satellites' PDOP is above it (inf: none, the paper's
-        model and MTK's: the shared MT3339 hour prints 3D fixes at PDOP 36.02). A u-blox
+        model and MTK's: the shared MT3339 hour prints 3D fixes at PDOP 36.02, the shared
+        BT-Q1000XT log a 3-satellite fix at PDOP 99.99, its cap). A u-blox
         receiver's default is 25.0 (CFG-NAV5 pDop, CFG-NAVSPG-OUTFIL_PDOP); without one, a
         least-squares fix over four nearly coplanar satellites lands kilometres away
     """
