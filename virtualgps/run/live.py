@@ -329,7 +329,8 @@ class LiveReceiver:
         """Answer a u-blox client and apply what it set: each reply is queued whole, then its
         settings applied (a baud change after the ACK has gone out at the old baud, as the
         module does); CFG-RST restarts the receiver; the navigation rate, the NMEA sentences,
-        SBAS and the systems tracked (:func:`tracking_systems`) follow the link's settings."""
+        SBAS, the PDOP mask (:func:`pdop_mask_of`) and the systems tracked
+        (:func:`tracking_systems`) follow the link's settings."""
         for resp in link.feed(data):
             if resp.reply:
                 self.device.write_epoch(resp.reply)

@@ -184,9 +184,9 @@ def _build() -> dict[int, ConfigKey]:
         ConfigKey(0x201100AA, "CFG-NAVSPG-INFIL_NCNOTHRS", ("nav5", "cno_thresh_num_svs"),
                   hi=255),
         ConfigKey(0x201100AB, "CFG-NAVSPG-INFIL_CNOTHRS", ("nav5", "cno_thresh_dbhz"), hi=255),
-        # The output filters (U2, DOPs x 0.1, accuracies in m) are CFG-NAV5's pDop, tDop, pAcc
-        # and tAcc (UBX-13003221 CFG-NAV5; UBX-19035208 CFG-NAVSPG): PDOP is the receiver's fix
-        # mask (``sky.pdop_mask``), the others are stored.
+        # The M9's output filters (U2, DOPs x 0.1, accuracies in m) are CFG-NAV5's pDop, tDop,
+        # pAcc and tAcc (UBX-13003221 CFG-NAV5): PDOP is the receiver's fix mask
+        # (``sky.pdop_mask``), the others are stored.
         ConfigKey(0x301100B1, "CFG-NAVSPG-OUTFIL_PDOP", ("nav5", "pdop_x10"), hi=0xFFFF),
         ConfigKey(0x301100B2, "CFG-NAVSPG-OUTFIL_TDOP", ("nav5", "tdop_x10"), hi=0xFFFF),
         ConfigKey(0x301100B3, "CFG-NAVSPG-OUTFIL_PACC", ("nav5", "pacc_m"), hi=0xFFFF),
