@@ -286,9 +286,9 @@ def test_the_phone_base_profile_writes_as_the_magdeburg_phone_does(tmp_path):
 def test_the_phone_profile_is_the_base_with_the_effects_both_data_sets_keep():
     """``phone`` is ``tools/phone-base.toml`` plus what tools/calibrate_phone.py's joint step
     kept (the Magdeburg fit's cn0_tracking: a weak antenna, 27.3 dB-Hz at the zenith; the GSDC
-    fit's velocity-aided nav_filter, which smooths the error and follows a car), nothing else:
-    its error models and NMEA stay the base's, so the documented held-out figures
-    (docs/profiles.md) describe this file."""
+    fit's velocity-aided nav_filter, which smooths the error and follows a car) and the PDOP
+    mask added after the fit (its cost measured, docs/profiles.md), nothing else: its error
+    models and NMEA stay the base's, so the documented held-out figures describe this file."""
     import tomllib
     from pathlib import Path
 
@@ -299,6 +299,7 @@ def test_the_phone_profile_is_the_base_with_the_effects_both_data_sets_keep():
     phone = tomllib.loads(profile_path("phone").read_text())
     kept = {"cn0_tracking", "nav_filter"}
     assert set(phone) - set(base) == kept
+    assert phone["sky"].pop("pdop_mask") == 25.0 and "pdop_mask" not in base["sky"]
     assert {k: v for k, v in phone.items() if k not in {"name", "description", *kept}} \
         == {k: v for k, v in base.items() if k not in ("name", "description")}
     prof = load_profile("phone")
