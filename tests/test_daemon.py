@@ -189,11 +189,11 @@ def test_link_settings_switch_the_sbas_and_static_hold_effects(receiver):
     assert live.apply_link_settings(rx3, off) is rx3  # nothing to change
 
 
-def test_a_u_blox_clients_pdop_mask_becomes_the_receivers():
-    """CFG-NAV5 polled at power-on shows the profile's PDOP mask (ublox-m9n: pDop 25.0, the
-    module's default); a client's CFG-VALSET of CFG-NAVSPG-OUTFIL_PDOP (the M9 way) and its
-    CFG-NAV5 pDop (the M8 way, which M9 firmware still takes) each become the receiver's
-    ``sky.pdop_mask``."""
+def test_a_u_blox_clients_masks_become_the_receivers():
+    """CFG-NAV5 polled at power-on shows the profile's masks (ublox-m9n: pDop 25.0 and minElev
+    5, the module's defaults); a client's CFG-VALSET of CFG-NAVSPG-OUTFIL_PDOP (the M9 way)
+    and its CFG-NAV5 (the M8 way, which M9 firmware still takes) each become the receiver's
+    ``sky.pdop_mask`` and ``sky.elevation_mask_deg``; what the client leaves alone stays."""
     pyubx2 = pytest.importorskip("pyubx2")
     cfg = resolve({"profile": "ublox-m9n", "scene": "none"})
     eph = load_tle(BUNDLED_SCENES_DIR.parent / "ephemeris" / "gps-ops-2017-03-28.tle")
@@ -201,7 +201,7 @@ def test_a_u_blox_clients_pdop_mask_becomes_the_receivers():
     assert rx.profile.sky.pdop_mask == 25.0
     sink = Sink()
     nav5 = {"dyn": 1, "minEl": 1, "posFixMode": 1, "posMask": 1, "dynModel": 4, "fixMode": 3,
-            "minElev": 5, "pDop": 12.5, "tDop": 25.0, "pAcc": 100, "tAcc": 350}
+            "minElev": 10, "pDop": 12.5, "tDop": 25.0, "pAcc": 100, "tAcc": 350}
     client = [pyubx2.UBXMessage("CFG", "CFG-NAV5", pyubx2.POLL).serialize(),
               pyubx2.UBXMessage.config_set(1, 0, [("CFG_NAVSPG_OUTFIL_PDOP", 40)]).serialize(),
               pyubx2.UBXMessage("CFG", "CFG-NAV5", pyubx2.SET, **nav5).serialize()]
@@ -218,12 +218,16 @@ def test_a_u_blox_clients_pdop_mask_becomes_the_receivers():
 
     polled = answer()
     assert [m.identity for m in polled] == ["CFG-NAV5", "ACK-ACK"]
-    assert polled[0].pDop == pytest.approx(25.0)
-    masks = []
+    assert polled[0].pDop == pytest.approx(25.0) and polled[0].minElev == 5
+    masks, elevations = [], []
     for _ in range(2):
         assert [m.identity for m in answer()] == ["ACK-ACK"]
         masks.append(member.rx.profile.sky.pdop_mask)
+        elevations.append(member.rx.profile.sky.elevation_mask_deg)
     assert masks == [4.0, 12.5]
+    assert elevations == [5.0, 10.0]
+    before = member.rx.profile.sky
+    assert live.sky_after_nav5(before, member.applied.nav5, member.applied.nav5) is before
     assert live.pdop_mask_of(0) == float("inf")
 
 

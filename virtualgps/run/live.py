@@ -18,9 +18,10 @@ import numpy as np
 
 from virtualgps.device import mtk, nmea
 from virtualgps.device.ubx.link import UbxLink
+from virtualgps.device.ubx.settings import Nav5
 from virtualgps.device.ubx.settings import default_settings as ubx_defaults
 from virtualgps.receiver.definition import Receiver
-from virtualgps.receiver.params import Profile
+from virtualgps.receiver.params import Profile, SkyParams
 from virtualgps.receiver.state import ReceiverRows, ReceiverState, initial_state, restart
 from virtualgps.run.poseproviders import SimClock
 from virtualgps.sky import systems as sky_systems
@@ -79,8 +80,9 @@ def make_link(profile, fmt: nmea.NmeaFormat) -> mtk.MtkLink | UbxLink | None:
 
 def make_ubx_link(profile) -> UbxLink:
     """A u-blox link at the profile's power-on: its generation (``[ubx]``), baud, rate, the
-    systems it tracks enabled (SBAS where ``[sbas]`` is on) and its PDOP mask as CFG-NAV5's
-    pDop (``sky.pdop_mask``; none as the largest, 6553.5).
+    systems it tracks enabled (SBAS where ``[sbas]`` is on), and its masks as CFG-NAV5's
+    minElev (``sky.elevation_mask_deg``, rounded) and pDop (``sky.pdop_mask``; none as the
+    largest, 6553.5).
 
     profile : the receiver profile; returns the UbxLink
     """
@@ -90,15 +92,30 @@ def make_ubx_link(profile) -> UbxLink:
         systems.append("SBAS")
     defaults = ubx_defaults(profile.ubx.generation, baud=profile.baud, rate_hz=profile.rate_hz,
                             gnss=tuple(systems))
-    mask = profile.sky.pdop_mask
-    pdop_x10 = min(round(mask * 10.0), 0xFFFF) if math.isfinite(mask) else 0xFFFF
-    return UbxLink(replace(defaults, nav5=replace(defaults.nav5, pdop_x10=pdop_x10)))
+    sky = profile.sky
+    pdop_x10 = min(round(sky.pdop_mask * 10.0), 0xFFFF) if math.isfinite(sky.pdop_mask) \
+        else 0xFFFF
+    nav5 = replace(defaults.nav5, pdop_x10=pdop_x10,
+                   min_elev_deg=round(sky.elevation_mask_deg))
+    return UbxLink(replace(defaults, nav5=nav5))
 
 
 def pdop_mask_of(pdop_x10: int) -> float:
     """The receiver's PDOP mask (``sky.pdop_mask``) for a u-blox client's CFG-NAV5 pDop /
     CFG-NAVSPG-OUTFIL_PDOP (x 0.1; 0 taken as no mask, as a mask of 0 would allow no fix)."""
     return pdop_x10 / 10.0 if pdop_x10 > 0 else math.inf
+
+
+def sky_after_nav5(sky: SkyParams, old: Nav5, new: Nav5) -> SkyParams:
+    """The receiver's sky settings after a u-blox client changed CFG-NAV5 (or its CFG-NAVSPG
+    keys) from ``old`` to ``new``: minElev becomes the elevation mask (within the [-10, 89]
+    degrees a profile takes), pDop the PDOP mask (:func:`pdop_mask_of`); what the client left
+    alone keeps the profile's value."""
+    if new.min_elev_deg != old.min_elev_deg:
+        sky = replace(sky, elevation_mask_deg=float(min(max(new.min_elev_deg, -10), 89)))
+    if new.pdop_x10 != old.pdop_x10:
+        sky = replace(sky, pdop_mask=pdop_mask_of(new.pdop_x10))
+    return sky
 
 
 def tracking_systems(rx: Receiver, profile: Profile, enabled: frozenset[str]) -> Receiver:
@@ -329,7 +346,7 @@ class LiveReceiver:
         """Answer a u-blox client and apply what it set: each reply is queued whole, then its
         settings applied (a baud change after the ACK has gone out at the old baud, as the
         module does); CFG-RST restarts the receiver; the navigation rate, the NMEA sentences,
-        SBAS, the PDOP mask (:func:`pdop_mask_of`) and the systems tracked
+        SBAS, the elevation and PDOP masks (:func:`sky_after_nav5`) and the systems tracked
         (:func:`tracking_systems`) follow the link's settings."""
         for resp in link.feed(data):
             if resp.reply:
@@ -355,12 +372,12 @@ class LiveReceiver:
                 self.rx = replace(self.rx, profile=replace(
                     prof, sbas=replace(prof.sbas, enabled=new.sbas_enabled)))
                 log.info("client set SBAS %s", "on" if new.sbas_enabled else "off")
-            if new.nav5.pdop_x10 != old.nav5.pdop_x10:
-                prof = self.rx.profile
-                mask = pdop_mask_of(new.nav5.pdop_x10)
-                self.rx = replace(self.rx, profile=replace(
-                    prof, sky=replace(prof.sky, pdop_mask=mask)))
-                log.info("client set the PDOP mask to %g", mask)
+            prof = self.rx.profile
+            sky = sky_after_nav5(prof.sky, old.nav5, new.nav5)
+            if sky != prof.sky:
+                self.rx = replace(self.rx, profile=replace(prof, sky=sky))
+                log.info("client set the elevation mask to %g deg and the PDOP mask to %g",
+                         sky.elevation_mask_deg, sky.pdop_mask)
             if new.enabled_gnss != old.enabled_gnss:
                 self.rx = tracking_systems(self.rx, self.prof, new.enabled_gnss)
                 log.info("client set the systems tracked: %s",
