@@ -2,6 +2,7 @@
 on the other, which it never saw, and make one profile of both.
 
     python tools/calibrate_phone.py [--data ../shared/data] [--seeds 30] [--out phone-cal]
+    python tools/calibrate_phone.py --test phone my-phone.toml   # profiles as they stand
 
 The data: the GSDC 2020-05-14 drive (a Pixel 4's chipset fixes, GGA+RMC without GSV, SPAN
 truth; its sky GPS alone, no other system's set of that day being at hand) and the Magdeburg
@@ -91,9 +92,19 @@ def main() -> None:
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--seeds", type=int, default=30)
     ap.add_argument("--out", default="phone-cal")
+    ap.add_argument("--test", nargs="+", metavar="PROFILE",
+                    help="only diagnose these profiles (names or TOML paths) as they stand on "
+                         "both data sets: their held-out gaps, nothing fitted into a profile")
     args = ap.parse_args()
     data, out = Path(args.data), Path(args.out)
     cases = {"gsdc": gsdc, "magdeburg": magdeburg}
+    if args.test:
+        for k, prof in enumerate(args.test):
+            for name, make in cases.items():
+                r = run(make(data, prof), args.seeds, out / f"as-is-{k}-{name}",
+                        f"{prof} as it stands on {name}")
+                print(f"  {name}: {prof} {r['gap_baseline']:.3f}", flush=True)
+        return
     held = {}
     for name, make in cases.items():
         r = run(make(data, str(BASE)), args.seeds, out / f"fit-{name}", f"fit on {name}")
