@@ -564,6 +564,12 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
     assert null["alternative"] is None  # (nothing added: no second search, no alternative)
     assert null["where_outside"] <= 0.05 * null["where_rows"]
     assert res["null_calibration"]["reports"] == 1
+    # every trial's seeds held out in turn: 12 reports each, added up
+    assert null["seed_holdout"]["reports"] == pair["seed_holdout"]["reports"] == 12
+    held = res["null_calibration"]["seed_holdout"]
+    assert held["trials"] == 2 and held["reports"] == 24
+    assert held["reports_with_any_row_outside"] == sum(
+        t["seed_holdout"]["reports_with_any_row_outside"] for t in res["trials"])
     assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair
     assert res["confusion"]["nothing@holux-m1000"] == {"nothing": 1}
 
@@ -611,6 +617,12 @@ def test_mt3339_hour_names_correlated_error_and_cold_start(shared_data, tmp_path
                            "unexplained", "calibrated_profile", "not_assessed"}
     for what, ok, measured in gap_cases.checks("mt3339", report):
         assert ok, f"{what}: {measured}"
+    # the bands checked on the seeds themselves: each of the 20 taken as the real log
+    held = report["band"]["seed_holdout"]
+    assert held["reports"] == 20 and 0 <= held["reports_with_any_row_outside"] <= 20
+    assert held["rows"] > len(report["where"]) and held["rows_outside"] == sum(
+        held["metrics"].values())
+    assert "Checked on the seeds themselves" in (out / "report.html").read_text()
     w = {(x["metric"], x["segment"]) for x in report["where"]}
     assert {("cep50_m", "all"), ("autocorr_s", "all"), ("ttff_s", "startup"),
             ("eq4_deg", "all")} <= w

@@ -356,16 +356,50 @@ def _predictive_distances(spec: MetricSpec, r: np.ndarray, centre: np.ndarray, s
     :func:`judge` takes one value, a fit's refits take every seed against every grid point).
 
     r : (B,) finite values; centre, sd_g, n : (T, 1) the ensembles'; returns (T, B)"""
+    p = _predictive_p(spec, r[None, :], centre, sd_g, n)
+    z = np.where(p >= 1.0, 0.0, np.minimum(Z_CAP, -special.ndtri(np.maximum(p, 1e-300) / 2.0)))
+    return np.clip(z - DEAD_ZONE_Z, 0.0, D_CAP)
+
+
+def _predictive_p(spec: MetricSpec, r: np.ndarray, centre: np.ndarray, sd_g: np.ndarray,
+                  n: np.ndarray) -> np.ndarray:
+    """:func:`_predictive`'s two-sided p-value, its arguments broadcast against each other
+    (1 inside the floor)."""
     floor = np.maximum(spec.floor, spec.rel_floor * np.abs(centre))
-    sign = np.where(r[None, :] > centre, 1.0, -1.0)
-    d = np.abs(_g(spec, r)[None, :] - _g(spec, centre + sign * floor))
+    sign = np.where(r > centre, 1.0, -1.0)
+    d = np.abs(_g(spec, r) - _g(spec, centre + sign * floor))
     scale = sd_g * np.sqrt(1.0 + 1.0 / n)
     with np.errstate(divide="ignore", invalid="ignore"):
         p = np.where(scale > 0, 2.0 * special.stdtr(n - 1, -d / np.where(scale > 0, scale, 1.0)),
                      np.where(d > 0, 0.0, 1.0))
-    z = np.minimum(Z_CAP, -special.ndtri(np.maximum(p, 1e-300) / 2.0))
-    z = np.where((np.abs(r[None, :] - centre) <= floor) | (p >= 1.0), 0.0, z)
-    return np.clip(z - DEAD_ZONE_Z, 0.0, D_CAP)
+    return np.where(np.abs(r - centre) <= floor, 1.0, p)
+
+
+def holdout_p(metric: str, sims: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Each seed in turn as the real value, judged against the others (:func:`judge`, for all
+    at once): the p-values a log made by the profile under test itself would get.
+
+    sims : (s,) the seeds' values; returns (s,) p-values (NaN where the seed has no value, or
+    too few others have one)
+    """
+    spec = METRICS[metric]
+    y = np.asarray(sims, dtype=float).ravel()
+    fin = np.isfinite(y)
+    out = np.full(y.size, np.nan)
+    if spec.nan_high and not fin.all():
+        for k in np.flatnonzero(fin):
+            out[k] = judge(metric, float(y[k]), np.delete(y, k)).p
+        return out
+    n = int(fin.sum()) - 1
+    if n < MIN_SEEDS:
+        return out
+    g = _g(spec, y[fin])
+    gc = g - g.mean()  # (centred: equal seeds give a spread of exactly 0)
+    m_k = -gc / n  # the others' mean, less the mean of all
+    var_k = np.maximum((float(gc @ gc) - gc ** 2 - n * m_k ** 2) / (n - 1), 0.0)
+    centre = _g_inv(spec, g.mean() + m_k)
+    out[fin] = _predictive_p(spec, y[fin], centre, np.sqrt(var_k), np.full(g.size, n))
+    return out
 
 
 def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) -> float:
@@ -402,8 +436,9 @@ def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) 
     return max(d_own, distance(z))
 
 
-def band_description(n_rows: int, seeds: int, alpha_row: float) -> dict:
-    """``report.json``'s ``band``: how the located gaps were judged."""
+def band_description(n_rows: int, seeds: int, alpha_row: float, holdout: dict) -> dict:
+    """``report.json``'s ``band``: how the located gaps were judged, and the bands checked on
+    the seeds themselves (``holdout``: :func:`virtualgps.gap.where.seed_holdout`)."""
     return {
         "method": "predictive",
         "statistic": "each row's real value against one more draw of the seeds' values of the "
@@ -420,4 +455,35 @@ def band_description(n_rows: int, seeds: int, alpha_row: float) -> dict:
                    for m, s in METRICS.items()},
         "resolution": "simulated positions, HDOP and altitude rounded to the digits the real "
                       "log prints; SNR compared in whole dB-Hz",
+        "seed_holdout": holdout | {
+            "what": "each seed in turn taken as the real log and judged against the others "
+                    "as the real log is: reports_with_any_row_outside of reports would show a "
+                    f"located gap; a calibrated band gives at most {FDR_Q:g} of them"},
     }
+
+
+HOLDOUT_P = 0.01  # the seed-holdout check warns when its count is this improbable
+
+
+def holdout_warning(band_entry: dict) -> str | None:
+    """A plain warning where the bands, checked on the seeds themselves, flag more of the seeds
+    taken as the real log than a calibrated band plausibly would: k of s reports with a
+    located gap when P(K >= k) < :data:`HOLDOUT_P` for K binomial(s, ``FDR_Q``) (at 50 seeds,
+    8 or more; the seeds' reports share their ensemble, so the level is a rough one). None
+    where the check passes or was not made."""
+    h = band_entry.get("seed_holdout") or {}
+    k, s = h.get("reports_with_any_row_outside", 0), h.get("reports", 0)
+    if not s or k == 0 or float(special.bdtrc(k - 1, s, FDR_Q)) >= HOLDOUT_P:
+        return None
+    worst = ", ".join(f"{m} ({n})" for m, n in sorted(h["metrics"].items(),
+                                                      key=lambda kv: -kv[1])[:3])
+    return (f"the bands look too narrow for this run: {k} of {s} seeds, each taken as the "
+            f"real log, would show a located gap (a calibrated band: at most "
+            f"{100 * FDR_Q:.0f} %); read the located gaps in {worst} with care")
+
+
+def holdout_counts(band_entry: dict) -> dict:
+    """A report's seed-holdout counts alone (``band.seed_holdout`` less its wording; empty
+    where the report has none): what the self-check adds up over its trials."""
+    h = band_entry.get("seed_holdout") or {}
+    return {k: v for k, v in h.items() if k != "what"}

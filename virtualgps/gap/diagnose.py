@@ -168,7 +168,7 @@ def pooled(runs: list[Run], sims: list[Obs], errs: list[np.ndarray]
     return (view, obs(sims), cat([r.err_real for r in runs], axis=1), cat(errs, axis=1))
 
 
-def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float]:
+def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float, dict]:
     """The located gaps of every segment (pooled over runs, and per run), judged together.
 
     sims : each run's ensemble as :func:`virtualgps.gap.runs.sim_obs` of its view
@@ -179,6 +179,8 @@ def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float]:
         names in ``same_as``)
     alpha_row : the per-row level the rows were judged at (:func:`virtualgps.gap.where.
         finish_rows`)
+    holdout : the bands checked on the seeds themselves (:func:`virtualgps.gap.where.
+        seed_holdout`)
     """
     errs = [errors_enu(r.view, s) for r, s in zip(runs, sims, strict=True)]
     view, sim, er, es = pooled(runs, sims, errs)

@@ -18,6 +18,7 @@ import numpy as np
 
 from virtualgps.gap import causes as cz
 from virtualgps.gap import effects as fx
+from virtualgps.gap.bands import holdout_warning
 from virtualgps.gap.ingest import ingest_notes
 
 
@@ -99,6 +100,18 @@ def write_json(report: dict, path: str | Path) -> None:
     """Write a report as strict JSON (NaN and infinities as null)."""
     Path(path).write_text(json.dumps(_jsonable(report), indent=1, allow_nan=False) + "\n",
                           encoding="utf-8")
+
+
+def _holdout_sentence(band: dict) -> str:
+    """The bands checked on the seeds themselves, in a sentence (empty where not made)."""
+    h = band.get("seed_holdout") or {}
+    if not h.get("reports"):
+        return ""
+    text = (f" Checked on the seeds themselves, each in turn taken as the real log: "
+            f"{h['reports_with_any_row_outside']} of {h['reports']} would show a located gap.")
+    if note := holdout_warning(band):
+        text += f" <b>Warning: {html.escape(note)}.</b>"
+    return text
 
 
 def _fmt(v: Any) -> str:
@@ -343,7 +356,8 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
         f"(finite ensemble), widened by the metric's practical floor, at the level the "
         f"false-discovery rule over all {len(where)} rows sets "
         f"({_fmt(band.get('alpha_row'))} per row, {_fmt(band.get('fdr_q'))} over the report)."
-        " Under the null (a log made by the profile under test) 5 % of reports show any.</p>",
+        " Under the null (a log made by the profile under test) 5 % of reports show any."
+        f"{_holdout_sentence(band)}</p>",
         _table(located, ["metric", "rows", "worst segment", "real", "band", "z", "segments"]),
         "<details><summary>every statistic</summary>",
         _table(where, ["metric", "segment", "same_as", "real", "sim_median", "sim_lo",
@@ -393,6 +407,10 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
         f"({cal.get('rows_outside', 0)} of {cal.get('rows', 0)} rows; nominal: "
         f"{html.escape(str(cal.get('nominal', '')))}); {cal.get('effects_added', 0)} added an "
         "effect.</p>",
+        *([f"<p>Every trial's seeds, each in turn taken as the real log against the others: "
+           f"{held['reports_with_any_row_outside']} of {held['reports']} such reports show a "
+           f"located gap ({held['rows_outside']} of {held['rows']} rows).</p>"]
+          if (held := cal.get("seed_holdout") or {}).get("reports") else []),
         _figure("confusion", plot.fig_confusion(names, firsts, counts),
                 "confusion matrix: injected x ranked first ('nothing': no effect added)")
         if names else "",

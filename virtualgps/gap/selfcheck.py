@@ -143,6 +143,24 @@ def summarise(rows: list[dict], opts: dg.Options) -> dict:
     }
     n = len(rows)
     single = [r for r in rows if r["kind"] in ("single", "real")]
+    held = [r["seed_holdout"] for r in rows if (r.get("seed_holdout") or {}).get("reports")]
+    h_n = sum(h["reports"] for h in held)
+    h_k = sum(h["reports_with_any_row_outside"] for h in held)
+    h_metrics: dict[str, int] = {}
+    for h in held:
+        for m, c in h["metrics"].items():
+            h_metrics[m] = h_metrics.get(m, 0) + c
+    calibration["seed_holdout"] = {
+        "trials": len(held), "reports": h_n, "reports_with_any_row_outside": h_k,
+        "report_share": h_k / h_n if h_n else math.nan,
+        "report_share_interval": _share_interval(h_k, h_n),
+        "rows": sum(h["rows"] for h in held),
+        "rows_outside": sum(h["rows_outside"] for h in held), "metrics": h_metrics,
+        "what": "every trial's baseline seeds, each in turn taken as the real log against the "
+                "others: logs of the profile under test along every trial's truth (the "
+                "interval treats the reports as independent; those of one trial share its "
+                "ensemble, so it is too narrow)",
+    }
     return {
         "trials": rows,
         "confusion": _confusion(rows, "ranked_first"),
@@ -178,6 +196,10 @@ def summary_lines(result: dict) -> list[str]:
         lines.append(f"  null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports "
                      f"with a located gap ({cal['rows_outside']}/{cal['rows']} rows), "
                      f"{cal['effects_added']} with an effect added")
+    if (held := cal.get("seed_holdout") or {}).get("reports"):
+        lines.append(f"  seeds held out in turn: {held['reports_with_any_row_outside']}/"
+                     f"{held['reports']} reports with a located gap "
+                     f"({held['rows_outside']}/{held['rows']} rows)")
     for label, s in result["summary"].items():
         others = {k: v for k, v in result["confusion"][label].items()
                   if k != (label if s["kind"] != "null" else NOTHING)}

@@ -31,6 +31,7 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.device.nmea import nmea_checksum, read_text_lines
 from virtualgps.gap import diagnose as dg
+from virtualgps.gap.bands import holdout_counts
 from virtualgps.gap.ingest import read_real_log
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
@@ -234,6 +235,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "outer_interval": (report.get("outer") or {}).get("interval"),
                 "where_rows": len(report["where"]),
                 "where_outside": sum(w["outside"] for w in report["where"]),
+                "seed_holdout": holdout_counts(report["band"]),
                 "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
                 "real": str(real), "truth": str(truth),
             })

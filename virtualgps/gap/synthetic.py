@@ -35,6 +35,7 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.device import nmea
 from virtualgps.gap import effects as fx
+from virtualgps.gap.bands import holdout_counts
 from virtualgps.poses import pose
 from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.profiles import load_profile_dict
@@ -412,6 +413,7 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
         "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
         "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
+        "seed_holdout": holdout_counts(report["band"]),
         "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
         "real": str(trial.real), "truth": trial.truth,
     }

@@ -22,7 +22,7 @@ from virtualgps.gap import causes as cz
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
 from virtualgps.gap import select as sel
-from virtualgps.gap.bands import band_description
+from virtualgps.gap.bands import band_description, holdout_warning
 from virtualgps.gap.design import make_design
 from virtualgps.gap.ensemble import ephemeris_of
 from virtualgps.gap.ingest import ingest_notes
@@ -290,12 +290,12 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     final_job = judging.submit(dg.where_table, runs, final_sims) if changed else None
     # (the final figures' arrays are computed meanwhile)
     figures = with_final(figures_job.result(), runs, final_sims, choice)
-    where, alpha = where_job.result()
+    where, alpha, holdout = where_job.result()
     say(f"baseline: {sum(w['outside'] for w in where)} located gaps in {len(where)} statistics")
     where_final = final_job.result()[0] if changed else where
     judging.shutdown()
-    report = _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, design,
-                     choice, causes, where_final, sim, n_base, table, base, final_table)
+    report = _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, holdout,
+                     design, choice, causes, where_final, sim, n_base, table, base, final_table)
     unshare(keys)
     report["elapsed_s"] = time.perf_counter() - t_start
     return report, figures, final_table
@@ -315,8 +315,9 @@ def _outer_share(choice: dg.Choice | None) -> dict[str, float]:
     return {n: sum(n in o["effects"] for o in choice.outer) / len(choice.outer) for n in names}
 
 
-def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, design, choice,
-            causes, where_final, sim, n_base, table, base, final_table) -> dict[str, Any]:
+def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, holdout, design,
+            choice, causes, where_final, sim, n_base, table, base, final_table
+            ) -> dict[str, Any]:
     """The ``report.json`` content."""
     share = _outer_share(choice)
     effects: list[dict] = []
@@ -361,7 +362,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, desi
         "profile_source": source,
         "seeds": opts.seeds,
         "fit_seeds": opts.n_fit,
-        "band": band_description(len(where), opts.seeds, alpha),
+        "band": band_description(len(where), opts.seeds, alpha, holdout),
         "where": where,
         "located": located_groups(where),
         "headline": headline(where, where_final if final_table != table else None),
@@ -612,6 +613,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
     else:
         lines.append(f"profile {report['profile']}: gap {_num(report['gap_baseline'])}")
     lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
+    if note := holdout_warning(report.get("band", {})):
+        lines.append(f"  warning: {note}")
     lines += [f"  warning: {r['name']}: {r['sky_warning']}" for r in report["runs"]
               if r.get("sky_warning")]
     lines += [f"  note: {r['name']}: {n}" for r in report["runs"] for n in ingest_notes(r)]

@@ -34,6 +34,7 @@ from virtualgps.gap.bands import (
     bh_alpha,
     distance,
     distance_against,
+    holdout_p,
     judge,
 )
 from virtualgps.gap.metrics import (
@@ -611,7 +612,7 @@ def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
     return rows
 
 
-def finish_rows(rows: list[dict]) -> tuple[list[dict], float]:
+def finish_rows(rows: list[dict]) -> tuple[list[dict], float, dict]:
     """Judge a report's rows together: the Benjamini-Hochberg level over their p-values, each
     row's band at that level and whether the real value leaves it (``outside``).
 
@@ -621,7 +622,9 @@ def finish_rows(rows: list[dict]) -> tuple[list[dict], float]:
         ``q_value`` and ``band95`` (one row's own 95 % prediction band, for reading; ``_sims``
         dropped)
     alpha_row : the per-row level used
+    holdout : :func:`seed_holdout` of the rows
     """
+    holdout = seed_holdout(rows)
     p = np.array([r["p_value"] for r in rows], dtype=float)
     alpha = bh_alpha(p)
     fin = np.isfinite(p)
@@ -640,7 +643,44 @@ def finish_rows(rows: list[dict]) -> tuple[list[dict], float]:
         outside = bool(np.isfinite(r["p_value"]) and (r["real"] < lo or r["real"] > hi))
         out.append(r | {"sim_lo": lo, "sim_hi": hi, "outside": outside, "q_value": qv,
                         "band95": list(band(r["metric"], sims, 0.05))})
-    return out, alpha
+    return out, alpha, holdout
+
+
+def seed_holdout(rows: list[dict]) -> dict:
+    """The bands checked on the seeds themselves: each seed in turn taken as the real log and
+    every row judged against the other seeds, together, as :func:`finish_rows` judges the real
+    log's (:func:`virtualgps.gap.bands.holdout_p`, then the Benjamini-Hochberg level over that
+    seed's rows). A seed is a log made by the profile under test along the same truth, so under
+    a calibrated band at most ``FDR_Q`` of these reports show a located gap; a larger share says
+    the band is too narrow for this run (a statistic whose seeds' values are heavy-tailed or
+    pile up on a few levels), and which metrics those rows belong to. A pairwise metric's seed
+    value is seed k against seed k - 1, as in its band.
+
+    rows : :func:`judged_rows` entries (with ``_sims``, each (s,) over the same seeds)
+    Returns
+    -------
+    {"reports": s, "reports_with_any_row_outside", "share", "rows", "rows_outside",
+     "metrics": {metric: rows outside over the s reports}}
+    """
+    if not rows:
+        return {"reports": 0, "reports_with_any_row_outside": 0, "share": math.nan,
+                "rows": 0, "rows_outside": 0, "metrics": {}}
+    s = max(np.asarray(r["_sims"]).size for r in rows)
+    p = np.full((len(rows), s), np.nan)
+    for i, r in enumerate(rows):
+        sims = np.asarray(r["_sims"], dtype=float).ravel()
+        p[i, :sims.size] = holdout_p(r["metric"], sims)
+    flagged = np.zeros(p.shape, bool)
+    for k in range(s):
+        col = p[:, k]
+        flagged[:, k] = np.isfinite(col) & (col <= bh_alpha(col))
+    any_k = flagged.any(axis=0)
+    metrics: dict[str, int] = {}
+    for i in np.flatnonzero(flagged.any(axis=1)):
+        metrics[rows[i]["metric"]] = metrics.get(rows[i]["metric"], 0) + int(flagged[i].sum())
+    return {"reports": s, "reports_with_any_row_outside": int(any_k.sum()),
+            "share": float(any_k.mean()), "rows": int(np.isfinite(p).sum()),
+            "rows_outside": int(flagged.sum()), "metrics": metrics}
 
 
 def merged_segments(named: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, list[str]]]:
