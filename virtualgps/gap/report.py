@@ -356,7 +356,7 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
         f"(finite ensemble), widened by the metric's practical floor, at the level the "
         f"false-discovery rule over all {len(where)} rows sets "
         f"({_fmt(band.get('alpha_row'))} per row, {_fmt(band.get('fdr_q'))} over the report)."
-        " Under the null (a log made by the profile under test) 5 % of reports show any."
+        " Under the null (a log made by the profile under test) at most 5 % of reports show any."
         f"{_holdout_sentence(band)}</p>",
         _table(located, ["metric", "rows", "worst segment", "real", "band", "z", "segments"]),
         "<details><summary>every statistic</summary>",
