@@ -567,7 +567,7 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
     # every trial's seeds held out in turn: 12 reports each, added up
     assert null["seed_holdout"]["reports"] == pair["seed_holdout"]["reports"] == 12
     held = res["null_calibration"]["seed_holdout"]
-    assert held["trials"] == 2 and held["reports"] == 24
+    assert held["truths"] == 2 and held["reports"] == 24
     assert held["reports_with_any_row_outside"] == sum(
         t["seed_holdout"]["reports_with_any_row_outside"] for t in res["trials"])
     assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair

@@ -143,7 +143,10 @@ def summarise(rows: list[dict], opts: dg.Options) -> dict:
     }
     n = len(rows)
     single = [r for r in rows if r["kind"] in ("single", "real")]
-    held = [r["seed_holdout"] for r in rows if (r.get("seed_holdout") or {}).get("reports")]
+    # (once per truth: the real-log bases' trials share one ensemble, simulated along the same
+    # truth with the same seeds, and would count its seeds again and again)
+    held = list({r["truth"]: r["seed_holdout"] for r in reversed(rows)
+                 if (r.get("seed_holdout") or {}).get("reports")}.values())
     h_n = sum(h["reports"] for h in held)
     h_k = sum(h["reports_with_any_row_outside"] for h in held)
     h_metrics: dict[str, int] = {}
@@ -151,15 +154,16 @@ def summarise(rows: list[dict], opts: dg.Options) -> dict:
         for m, c in h["metrics"].items():
             h_metrics[m] = h_metrics.get(m, 0) + c
     calibration["seed_holdout"] = {
-        "trials": len(held), "reports": h_n, "reports_with_any_row_outside": h_k,
+        "truths": len(held), "reports": h_n, "reports_with_any_row_outside": h_k,
         "report_share": h_k / h_n if h_n else math.nan,
         "report_share_interval": _share_interval(h_k, h_n),
         "rows": sum(h["rows"] for h in held),
         "rows_outside": sum(h["rows_outside"] for h in held), "metrics": h_metrics,
         "what": "every trial's baseline seeds, each in turn taken as the real log against the "
-                "others: logs of the profile under test along every trial's truth (the "
-                "interval treats the reports as independent; those of one trial share its "
-                "ensemble, so it is too narrow)",
+                "others: logs of the profile under test along every trial's truth, each truth "
+                "once (trials on one real log share its ensemble; the interval treats the "
+                "reports as independent, but those of one truth share their ensemble, so it "
+                "is too narrow)",
     }
     return {
         "trials": rows,
