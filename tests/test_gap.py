@@ -757,6 +757,22 @@ def test_a_ten_second_log_claims_no_effect_and_says_why(tmp_path):
     assert report["where"]  # the located gaps still stand
 
 
+def test_effects_none_locates_the_gaps_and_offers_no_effect(tmp_path):
+    """``--effects none``: a quick look. The located gaps, the causes and the bands checked on
+    the seeds stand; no candidate is simulated, so the log's injected delay is not named."""
+    tr = _latency_trial(tmp_path)
+    out = tmp_path / "quick"
+    r = _gap_cli(["--real", str(tr.real), "--truth", tr.truth, "--scene", "none", "--tle",
+                  tr.tle, "--profile", str(tr.profile), "--seeds", "5", "--jobs", "1",
+                  "--effects", "none", "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["design"]["claims"] and report["effects"] == []
+    assert report["where"] and report["band"]["seed_holdout"]["reports"] == 5
+    assert any(c["name"] == "time_offset" for c in report["causes"])  # (the delay's clue)
+    assert report["gap_final"] == report["gap_baseline"]
+
+
 def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
     """A fork copies only the forking thread: a module the located gaps' thread is importing
     stays locked in the worker, which hangs at its first import of it (a self-check in the

@@ -14,7 +14,7 @@ self-check's own runs use indices 0 to ``--trials`` - 1. One line per trial: the
 effects added, the where-rows outside of all, the ``smoothing_s`` rows (real, seeds' median),
 and the bands checked on the seeds themselves (``band.seed_holdout``: how many of the seeds,
 each taken as the real log, would show a located gap). ``--bands-only`` judges the rows and
-holds the seeds out in turn, and offers no effect (``--effects`` none): a quick check of the
+holds the seeds out in turn, and offers no effect (``--effects none``): a quick check of the
 bands alone.
 """
 

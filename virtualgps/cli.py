@@ -159,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="seeds per candidate parameter set while fitting (default min(seeds, "
                      "8))")
     gap.add_argument("--effects", help="candidate effects, comma-separated (default: every "
-                     "effect the profile lacks or has switched off)")
+                     "effect the profile lacks or has switched off; none: locate the gaps only)")
     gap.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
     gap.add_argument("--dask", metavar="ADDRESS",
                      help="send the ensemble jobs to this Dask scheduler (tcp://HOST:8786)")
@@ -525,7 +525,9 @@ def _gap_options(args: argparse.Namespace):
     from virtualgps.gap.effects import EFFECT_NAMES
 
     effects = None
-    if args.effects:
+    if args.effects and args.effects.strip() == "none" and not args.selfcheck:
+        effects = ()  # (locate the gaps and name the causes; offer no effect)
+    elif args.effects:
         effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
         bad = [e for e in effects if not (e in EFFECT_NAMES or (args.selfcheck and (
             "+" in e or e.startswith("nothing"))))]

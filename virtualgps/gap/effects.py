@@ -245,7 +245,7 @@ def candidates(
     systems_seen : RINEX letters of the systems the real logs list (``constellations``)
     systems_held : RINEX letters of the systems the ephemeris holds satellites of
     starts : some run's log starts at power-on (without it ``cold_start`` changes nothing)
-    names : restrict to these effects (``--effects``); None: every one
+    names : restrict to these effects (``--effects``; empty: none); None: every one
 
     Returns
     -------
@@ -257,7 +257,7 @@ def candidates(
     noise = profile.get("noise", {})
     baseline = noise.get("model", "usarsim") == "usarsim"
     dop = _enabled(profile, "dop_error")
-    for name in names or EFFECT_NAMES:
+    for name in EFFECT_NAMES if names is None else names:
         if name not in EFFECT_NAMES:
             skipped[name] = "not an effect of DESIGN section 6"
             continue
