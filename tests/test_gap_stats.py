@@ -469,6 +469,55 @@ def test_flat_earth_misplaces_a_far_run_by_tens_of_metres():
     assert causes.georeference([run], "wgs84") is None
 
 
+def test_a_flat_earth_profiles_misplacement_is_no_offset_of_the_truth():
+    """A 25 km drive against a flat-earth profile: its seeds' errors hold the conversion's
+    misplacement (tens of metres), a real receiver's do not. Judged against the seeds as they
+    are, the truth looks tens of metres off (the GSDC drive's SPAN truth was "moved" by 29 m);
+    judged against the conversion the log follows, a right truth stays, a log made by the
+    flat-earth rule itself keeps that rule, and a truth really 8 m off is found as such."""
+    from types import SimpleNamespace
+
+    from virtualgps import geodesy
+    from virtualgps.receiver.definition import Georef
+
+    rng = np.random.default_rng(17)
+    n = 1800
+    enu = np.stack([np.linspace(0, 25_000, n), np.linspace(0, 5_000, n), np.zeros(n)], 1)
+    lat, lon, alt = geodesy.ecef_to_geodetic(geodesy.enu_to_ecef(enu, 37.4, -122.1, 0.0))
+    view = SimpleNamespace(reference="truth", valid=np.ones(n, bool), t_unix_s=np.arange(
+        float(n)), name="drive", vel_enu_mps=np.zeros((n, 3)), speed_mps=np.zeros(n),
+        truth_lat_deg=lat, truth_lon_deg=lon, truth_alt_hae_m=alt)
+    setup = SimpleNamespace(valid=np.ones(n, bool), georef=Georef(37.4, -122.1, 0.0),
+                            antenna_enu_m=enu)
+
+    def run(err_en: np.ndarray):
+        err = np.zeros((1, n, 3))
+        err[0, :, :2] = err_en
+        return SimpleNamespace(view=view, setup=setup, err_real=err)
+
+    disp = causes.flat_earth_enu_m(run(np.zeros((n, 2))))
+    assert np.hypot(disp[:, 0], disp[:, 1]).max() > 10.0
+    seeds = np.zeros((12, n, 3))
+    seeds[:, :, :2] = _gm(rng, n, 60.0, 2.0, k=12)
+    flat_seeds = seeds + disp[None]
+    real_rx = _gm(rng, n, 60.0, 2.0)
+    assert causes.truth_offset(run(real_rx), 60.0, flat_seeds)["applied"]  # (the old reading)
+    right = causes.truth_offset_of(run(real_rx), 60.0, flat_seeds, "flat_earth")
+    assert right["reference"] == "wgs84" and not right["applied"], right
+    assert "the exact conversion, which the log follows better" in right["reference_note"]
+    usarsim_log = causes.truth_offset_of(run(real_rx + disp[:, :2]), 60.0, flat_seeds,
+                                         "flat_earth")
+    assert usarsim_log["reference"] == "flat_earth" and not usarsim_log["applied"]
+    off = causes.truth_offset_of(run(real_rx + [8.0, 0.0]), 60.0, flat_seeds, "flat_earth")
+    assert off["reference"] == "wgs84" and off["applied"]
+    assert off["east_m"] == pytest.approx(8.0, abs=1.5)
+    lo, hi = off["interval_m"]["east"]
+    assert lo < 8.0 < hi
+    exact = causes.truth_offset_of(run(real_rx + [8.0, 0.0]), 60.0, seeds, "wgs84")
+    assert exact["reference"] == "wgs84" and exact["east_m"] == pytest.approx(off["east_m"])
+    assert "reference_note" not in exact  # (an exact profile has one conversion only)
+
+
 def _turning_track(rng: np.random.Generator, n_s: int = 600):
     """A car at 15 m/s with turns of 3-15 s, left and right, apart by 10-40 s: (t at 1 Hz,
     fine t at 0.01 s, fine east/north (m, 2), heading rate per second)."""

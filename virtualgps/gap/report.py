@@ -229,7 +229,8 @@ def _cause_rows(report: dict) -> list[dict]:
                        "error inflates it" if c.get("inflation", 1.0) > 1.0 else "") + ")"
                     + (": the truth was moved by it before judging" if c["applied"]
                        else ": not significant, left as it is" if c["p_value"] >= cz.OFFSET_P
-                       else f": under {cz.OFFSET_MIN_M:g} m, left as it is"))
+                       else f": under {cz.OFFSET_MIN_M:g} m, left as it is")
+                    + (f"; {c['reference_note']}" if c.get("reference_note") else ""))
         elif c["name"] == "time_offset":
             lo, hi = c["interval_s"]
             what = (f"{c['run']}: the fixes lag the truth by {c['lag_s']:.2f} s"

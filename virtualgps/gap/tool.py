@@ -231,7 +231,7 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     causes: list[dict] = []
     for i, r in enumerate(runs):
         sim_err = errors_enu(r.view, base_sims[i])
-        off = cz.truth_offset(r, tau_real[i], sim_err)
+        off = cz.truth_offset_of(r, tau_real[i], sim_err, profile.georef)
         if off is not None:
             causes.append(off)
             if off["applied"]:
@@ -622,7 +622,8 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
         if c["name"] == "truth_offset" and c["applied"]:
             lines.append(f"  cause: the truth of {c['run']} sits {c['size_m']:.1f} m off "
                          f"(E {c['east_m']:+.1f} m, N {c['north_m']:+.1f} m; p "
-                         f"{c['p_value']:.2g}): moved before judging")
+                         f"{c['p_value']:.2g}): moved before judging"
+                         + (f"; {c['reference_note']}" if c.get("reference_note") else ""))
         elif c["name"] == "time_offset":
             if cz.clock_note(c):
                 lines.append(f"  cause: {cz.clock_note(c)}")
