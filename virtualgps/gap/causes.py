@@ -11,7 +11,9 @@ named as such and measured, so that no effect of section 6 absorbs them.
   with Hotelling's T^2 on the blocks' mean errors, less the seeds' own and less the fixes' lag
   behind a moving truth, its null calibrated on the seeds themselves, at :data:`OFFSET_P`;
   where it holds and exceeds :data:`OFFSET_MIN_M`, the real errors are taken about the truth
-  moved by the estimate before anything else is judged.
+  moved by the estimate before anything else is judged. For a flat-earth profile it is tested
+  against the conversion the log follows (:func:`truth_offset_of`), so the profile's own
+  misplacement of the antenna is never taken for an offset of the truth.
 - ``constellations``: the real receiver tracks satellite systems the simulation does not (a
   phone's GLONASS beside GPS): satellites used, HDOP and tracking then differ for that reason,
   which no effect of a GPS receiver explains. Counted per run from the log's GSV and GSA.
