@@ -837,18 +837,22 @@ def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
 def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared_data,
                                                                           tmp_path):
     """The GSDC drive, untouched and then with a pure output delay or a first-order filter
-    injected into its fixes, or its truth moved by metres. The untouched phone log needs
-    holux-m1000's range errors scaled down (a dual-frequency phone's errors are a fraction of
-    a 2008 logger's); the delay is the first effect the untouched log did not need, its length near
-    the injected one; the filter is refitted as a filter of the motion near the injected
-    time constant; the wrong truth is named as a truth offset and no receiver effect absorbs
-    it."""
+    injected into its fixes, its truth moved by metres, or its first seconds without a fix.
+    The untouched phone log needs holux-m1000's range errors scaled down (a dual-frequency
+    phone's errors are a fraction of a 2008 logger's); the delay is the first effect the
+    untouched log did not need, its length near the injected one; the filter is refitted as a
+    filter of the motion near the injected time constant; the wrong truth is named as a truth
+    offset and no receiver effect absorbs it; the late first fix is a cold start whose
+    interval holds it."""
     from virtualgps.gap import selfcheck, selfcheck_real
 
     rows, note = selfcheck_real.run(shared_data, dg.Options(seeds=12, jobs=2), 1, tmp_path,
-                                    effects=("latency", "nav_filter", "truth_offset"))
+                                    effects=("latency", "nav_filter", "truth_offset",
+                                             "cold_start"))
     assert note is None
-    delay, filt, off = rows
+    delay, filt, off, cold = rows
+    assert cold["success"] and cold["added_first"] == "cold_start", cold
+    assert cold["recovered"]["power_on"] == "cold" and cold["covered"] == {"ttff_cold_s": True}
     assert delay["base_accepted"] == ["noise_level"]
     assert delay["success"] and delay["added_first"] == "latency", delay
     assert delay["recovered"]["latency_s"] == pytest.approx(delay["params"]["latency_s"],

@@ -10,7 +10,9 @@ at drawn parameters:
 - ``latency``: every fix reports where the antenna was L seconds earlier (a pure output delay);
 - ``nav_filter``: the fixes pass a first-order low-pass filter of time constant tau;
 - ``static_hold``: the fix is frozen while the log's own speed is below a threshold;
-- ``truth_offset``: the truth is moved by several metres (a wrong truth).
+- ``truth_offset``: the truth is moved by several metres (a wrong truth);
+- ``cold_start``: the log's first T seconds print no fix (GGA quality 0, RMC void), as a
+  receiver powered on with the log that needs T seconds for its first fix.
 
 A trial is right when the injected effect is the first effect added that the untouched log did
 not add (or, for one it added too, when the new fit's interval holds the injected value), and
@@ -38,7 +40,7 @@ from virtualgps.poses import pose
 
 GSDC = "gsdc-2020-05-14-mtv"
 BASE_PROFILE = "holux-m1000"
-REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset")
+REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset", "cold_start")
 MPS_PER_KNOT = 1852.0 / 3600.0
 
 
@@ -86,6 +88,38 @@ def rewrite_fixes(lines: list[str], t_unix_s: np.ndarray, lat_deg: np.ndarray,
         f[pos + 1] = "N" if new[0] >= 0 else "S"
         f[pos + 2] = _fmt_minutes(new[1], 3, dec)[0]
         f[pos + 3] = "E" if new[1] >= 0 else "W"
+        text = ",".join(f)
+        out.append(f"${text}*{nmea_checksum(text)}")
+    return out
+
+
+def blank_fixes(lines: list[str], start_unix_s: float, seconds: float) -> list[str]:
+    """The log's lines with every GGA and RMC of its first ``seconds`` printed as a receiver
+    without a fix prints them (GGA quality 0 with no position, satellites, HDOP or altitude;
+    RMC status V with no position, speed or course), checksums recomputed.
+
+    start_unix_s : the log's first epoch (its sentences carry the time of day: a sentence is
+    ``seconds`` or more after it modulo a day, so a log over midnight is read right)
+    """
+    start_tod = start_unix_s % 86400.0
+    out = []
+    for ln in lines:
+        body = ln.strip()
+        if not body.startswith("$") or "*" not in body:
+            out.append(ln)
+            continue
+        f = body[1:body.rindex("*")].split(",")
+        kind = f[0][-3:]
+        if (kind not in ("GGA", "RMC") or len(f) < 10 or not f[1]
+                or (_tod_s(f[1]) - start_tod) % 86400.0 >= seconds):
+            out.append(ln)
+            continue
+        if kind == "GGA":
+            f[2:10] = ["", "", "", "", "0", "", "", ""]
+        else:
+            f[2:9] = ["V", "", "", "", "", "", ""]
+            if len(f) > 12:
+                f[12] = "N"  # (the mode indicator: no fix)
         text = ",".join(f)
         out.append(f"${text}*{nmea_checksum(text)}")
     return out
@@ -201,14 +235,19 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                              if off is not None else {})
             else:
                 lo_hi = {"latency": (0.8, 2.5), "nav_filter": (1.5, 4.0),
-                         "static_hold": (0.8, 1.5)}[effect]
+                         "static_hold": (0.8, 1.5), "cold_start": (25.0, 60.0)}[effect]
                 value = round(float(rng.uniform(*lo_hi)), 2)
-                nlat, nlon = inject(effect, value, t, lat, lon, speed)
                 path = work / f"{tag}.nmea"
-                path.write_text("\n".join(rewrite_fixes(lines, t, nlat, nlon)) + "\n")
+                if effect == "cold_start":  # (whole seconds: the log's epochs are 1 s apart)
+                    value = float(round(value))
+                    new_lines = blank_fixes(lines, float(ep.t_unix_s[0]), value)
+                else:
+                    nlat, nlon = inject(effect, value, t, lat, lon, speed)
+                    new_lines = rewrite_fixes(lines, t, nlat, nlon)
+                path.write_text("\n".join(new_lines) + "\n")
                 report = diagnose(path, str(truth))
                 key = {"latency": "latency_s", "nav_filter": "tau_s",
-                       "static_hold": "threshold_mps"}[effect]
+                       "static_hold": "threshold_mps", "cold_start": "ttff_cold_s"}[effect]
                 injected = {key: value}
                 added = [e["name"] for e in report["effects"] if e.get("accepted")]
                 params, intervals, grids = synthetic.recovered((effect,), report)
