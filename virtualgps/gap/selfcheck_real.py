@@ -276,7 +276,8 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "where_outside": sum(w["outside"] for w in report["where"]),
                 "seed_holdout": holdout_counts(report["band"]),
                 "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
-                "real": str(real), "truth": str(truth),
+                "real": str(real if effect == "truth_offset" else path),
+                "truth": str(tpath if effect == "truth_offset" else truth),
             })
             if progress:
                 progress(f"self-check real:gsdc:{effect} trial {i + 1}/{trials}: "
