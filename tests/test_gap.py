@@ -692,6 +692,43 @@ def test_a_drive_far_from_the_origin_blames_the_flat_earth_not_the_truth(shared_
     assert cep["real"] < 1.5  # the phone's own error, about the SPAN truth
 
 
+def test_the_real_bases_injections_print_what_a_receiver_prints(tmp_path):
+    """A cold start blanks the fixes of a log's first seconds across midnight, as a receiver
+    without a fix prints them; moved fixes keep the log's digits. pynmeagps reads every
+    changed sentence (checksums checked) and the gap tool's reader sees no fix where blanked,
+    the new position where moved."""
+    import datetime as dt
+
+    import pynmeagps
+
+    from virtualgps.device.nmea import nmea_checksum
+    from virtualgps.gap.selfcheck_real import blank_fixes, rewrite_fixes
+
+    def line(body: str) -> str:
+        return f"${body}*{nmea_checksum(body)}"
+
+    lines = []
+    for tod in ("235958.00", "235959.00", "000000.00", "000001.00", "000002.00"):
+        lines += [line(f"GPGGA,{tod},3725.415069,N,12205.647326,W,1,08,0.9,10.0,M,0.0,M,,"),
+                  line(f"GPRMC,{tod},A,3725.415069,N,12205.647326,W,000.0,000.0,"
+                       f"{'140520' if tod.startswith('23') else '150520'},,,A")]
+    start = dt.datetime(2020, 5, 14, 23, 59, 58, tzinfo=dt.UTC).timestamp()
+    blanked = blank_fixes(lines + ["not a sentence"], start, 3.0)
+    assert blanked[-1] == "not a sentence" and blanked[6:10] == lines[6:10]
+    for text in blanked[:6]:
+        msg = pynmeagps.NMEAReader.parse(text, validate=pynmeagps.VALCKSUM)
+        assert (msg.quality == 0 if msg.msgID == "GGA" else msg.status == "V") and msg.lat == ""
+    path = tmp_path / "cold.nmea"
+    path.write_text("\n".join(blanked) + "\n")
+    ep, *_ = read_real_log(path)
+    assert (ep.quality > 0).tolist() == [False, False, False, True, True]
+    moved = rewrite_fixes(lines, np.array([start + 4.0]), np.array([37.5]), np.array([-122.0]))
+    assert moved[:8] == lines[:8]
+    gga = pynmeagps.NMEAReader.parse(moved[8], validate=pynmeagps.VALCKSUM)
+    assert moved[8].split(",")[2] == "3730.000000"  # (the log's six decimals kept)
+    assert gga.lat == pytest.approx(37.5) and gga.lon == pytest.approx(-122.0)
+
+
 def test_gap_cli_errors_are_one_line(tmp_path):
     empty = tmp_path / "empty.nmea"
     empty.write_text("")

@@ -58,6 +58,25 @@ def _fmt_minutes(value_deg: float, deg_digits: int, decimals: int) -> tuple[str,
     return f"{d:0{deg_digits}d}{m:0{3 + decimals}.{decimals}f}", ""
 
 
+def _edit_sentences(lines: list[str], edit: Callable[[list[str]], bool]) -> list[str]:
+    """The log's lines with each sentence's fields passed to ``edit`` (which changes them in
+    place and says whether it did; those sentences are written again with their checksum
+    recomputed, the others kept as they were)."""
+    out = []
+    for ln in lines:
+        body = ln.strip()
+        if not body.startswith("$") or "*" not in body:
+            out.append(ln)
+            continue
+        f = body[1:body.rindex("*")].split(",")
+        if not edit(f):
+            out.append(ln)
+            continue
+        text = ",".join(f)
+        out.append(f"${text}*{nmea_checksum(text)}")
+    return out
+
+
 def rewrite_fixes(lines: list[str], t_unix_s: np.ndarray, lat_deg: np.ndarray,
                   lon_deg: np.ndarray) -> list[str]:
     """The log's lines with the GGA and RMC positions of each epoch replaced (matched by the
@@ -67,30 +86,22 @@ def rewrite_fixes(lines: list[str], t_unix_s: np.ndarray, lat_deg: np.ndarray,
     """
     by_tod = {round(float(t) % 86400.0, 2): (a, b) for t, a, b in zip(t_unix_s, lat_deg,
                                                                         lon_deg, strict=True)}
-    out = []
-    for ln in lines:
-        body = ln.strip()
-        if not body.startswith("$") or "*" not in body:
-            out.append(ln)
-            continue
-        f = body[1:body.rindex("*")].split(",")
-        kind = f[0][-3:]
-        pos = {"GGA": 2, "RMC": 3}.get(kind)
+
+    def move(f: list[str]) -> bool:
+        pos = {"GGA": 2, "RMC": 3}.get(f[0][-3:])
         if pos is None or not f[1] or not f[pos]:
-            out.append(ln)
-            continue
+            return False
         new = by_tod.get(round(_tod_s(f[1]), 2))
         if new is None or not np.isfinite(new[0]):
-            out.append(ln)
-            continue
+            return False
         dec = len(f[pos].split(".")[1]) if "." in f[pos] else 4
         f[pos] = _fmt_minutes(new[0], 2, dec)[0]
         f[pos + 1] = "N" if new[0] >= 0 else "S"
         f[pos + 2] = _fmt_minutes(new[1], 3, dec)[0]
         f[pos + 3] = "E" if new[1] >= 0 else "W"
-        text = ",".join(f)
-        out.append(f"${text}*{nmea_checksum(text)}")
-    return out
+        return True
+
+    return _edit_sentences(lines, move)
 
 
 def blank_fixes(lines: list[str], start_unix_s: float, seconds: float) -> list[str]:
@@ -102,27 +113,21 @@ def blank_fixes(lines: list[str], start_unix_s: float, seconds: float) -> list[s
     ``seconds`` or more after it modulo a day, so a log over midnight is read right)
     """
     start_tod = start_unix_s % 86400.0
-    out = []
-    for ln in lines:
-        body = ln.strip()
-        if not body.startswith("$") or "*" not in body:
-            out.append(ln)
-            continue
-        f = body[1:body.rindex("*")].split(",")
+
+    def blank(f: list[str]) -> bool:
         kind = f[0][-3:]
         if (kind not in ("GGA", "RMC") or len(f) < 10 or not f[1]
                 or (_tod_s(f[1]) - start_tod) % 86400.0 >= seconds):
-            out.append(ln)
-            continue
+            return False
         if kind == "GGA":
             f[2:10] = ["", "", "", "", "0", "", "", ""]
         else:
             f[2:9] = ["V", "", "", "", "", "", ""]
             if len(f) > 12:
                 f[12] = "N"  # (the mode indicator: no fix)
-        text = ",".join(f)
-        out.append(f"${text}*{nmea_checksum(text)}")
-    return out
+        return True
+
+    return _edit_sentences(lines, blank)
 
 
 def _enu(lat, lon, lat0, lon0):
