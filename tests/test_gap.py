@@ -617,6 +617,11 @@ def test_mt3339_hour_names_correlated_error_and_cold_start(shared_data, tmp_path
                            "unexplained", "calibrated_profile", "not_assessed"}
     for what, ok, measured in gap_cases.checks("mt3339", report):
         assert ok, f"{what}: {measured}"
+    # the hour holds one power-on: the outer group that holds it chose without a start-up,
+    # and the report says the outer test cannot judge cold_start (it judges the rest)
+    assert [n["effect"] for n in report["outer"]["not_judged"]] == ["cold_start"]
+    assert report["outer"]["not_judged"][0]["shows_in"][0].startswith("time block 1/")
+    assert "the outer test cannot judge cold_start" in r.stdout
     # the bands checked on the seeds themselves: each of the 20 taken as the real log
     held = report["band"]["seed_holdout"]
     assert held["reports"] == 20 and 0 <= held["reports_with_any_row_outside"] <= 20

@@ -859,3 +859,27 @@ def test_statistics_and_scores_come_back_from_a_worker_as_they_left():
         assert same(x, back), x
     assert not same(stats, where.SegmentStats(stats.real, {**sim, "cep50_m": sim["cep50_m"] + 1},
                                               pair, stats.fractions))
+
+
+def test_an_effect_seen_once_is_not_claimed_by_the_outer_test():
+    """A start-up shows in the one block that holds the power-on: the outer group that holds
+    that block chose without it, so the outer test cannot judge it, and the report says so;
+    an effect some group holding its evidence chose is judged, one that shows nowhere is not
+    named."""
+    from virtualgps.gap import diagnose, report
+
+    outer = [{"heldout": f"time block {k + 1}/4", "units": [k],
+              "effects": ["correlated_error"] + (["cold_start"] if k else [])}
+             for k in range(4)]
+    steps = [{"name": "correlated_error", "_shows_in": [0, 1, 2, 3]},
+             {"name": "cold_start", "_shows_in": [0]},
+             {"name": "sbas", "_shows_in": []}]
+    blind = diagnose.not_judged(steps, outer)
+    assert blind == [{"effect": "cold_start", "shows_in": ["time block 1/4"]}]
+    # with the power-on in a second run's block too, a group that holds one chose it
+    outer[0]["units"] = [0, 4]
+    outer[1]["units"] = [1, 5]
+    steps[1]["_shows_in"] = [0, 5]
+    assert diagnose.not_judged(steps, outer) == []
+    (note,) = report.not_judged_notes({"not_judged": blind})
+    assert "cannot judge cold_start" in note and "time block 1/4" in note

@@ -6,7 +6,9 @@ Per trial label (an injected effect, a pair, a null trial, a real-log base): how
 was right, what it ranked first where it was wrong (``nothing``: no effect added), the main
 parameter injected against recovered (medians, the median absolute error, and how often the
 recovered interval held the injected value), and the median outer-test shrinkage of the gap (1 -
-gap_after / gap_before); then the band's calibration under the null.
+gap_after / gap_before; and in how many trials an added effect showed in data the outer test
+could not hold out from its choice, ``outer_not_judged``); then the band's calibration under the
+null.
 """
 
 from __future__ import annotations
@@ -78,8 +80,11 @@ def table(result: dict) -> str:
                   if t["gap_before"] and t["gap_after"] is not None and t["gap_before"] > 0]
         effect = trials[0]["effects"][0] if trials[0]["effects"] else None
         cell = _param_cell(effect, trials) if effect and s["kind"] != "pair" else "—"
+        blind = sum(bool(t.get("outer_not_judged")) for t in trials)
         out.append(f"| `{label}` | {s['success']}/{s['trials']} | {instead} | {cell} | "
-                   + (f"−{100 * np.median(shrink):.0f} % |" if shrink else "— |"))
+                   + (f"−{100 * np.median(shrink):.0f} %" if shrink else "—")
+                   + (f" (an added effect not judgeable in {blind}/{len(trials)})" if blind
+                      else "") + " |")
     return "\n".join(out)
 
 

@@ -82,7 +82,7 @@ class Choice:
         after = np.array([o["gap_after"] for o in self.outer], dtype=float)
         ok = np.isfinite(before) & np.isfinite(after)
         out = {"gap_before": math.nan, "gap_after": math.nan, "reduction": math.nan,
-               "interval": [math.nan, math.nan], "groups": int(ok.sum())}
+               "interval": [math.nan, math.nan], "groups": int(ok.sum()), "not_judged": []}
         if not ok.any():
             return out
         d = before[ok] - after[ok]
@@ -92,7 +92,31 @@ class Choice:
             half = float(special.stdtrit(d.size - 1, 0.975)) * float(np.std(d, ddof=1)) \
                 / math.sqrt(d.size)
             out["interval"] = [float(d.mean() - half), float(d.mean() + half)]
+        out["not_judged"] = not_judged(self.full.steps, self.outer)
         return out
+
+
+def not_judged(steps: list[dict], outer: list[dict]) -> list[dict]:
+    """The added effects the outer test cannot judge: every outer group that holds a unit
+    where the effect shows (its held-out gap changes by FLAT_MIN or more) was chosen without
+    it. Such an effect shows in data seen once (a run's one power-on, the one stop of a
+    drive): held out, the choice made on the other units had nothing to add it for, so the
+    outer test's reduction leaves it out, however right it is.
+
+    steps : the full selection's added effects (entries with ``_shows_in``: unit indices)
+    outer : the outer groups (``units``: unit indices held out; ``effects``: their choice)
+
+    Returns
+    -------
+    [{"effect", "shows_in": [held-out unit labels of the groups that hold it]}]
+    """
+    out = []
+    for s in steps:
+        shows = set(s.get("_shows_in", ()))
+        holding = [o for o in outer if shows & set(o["units"])]
+        if holding and not any(s["name"] in o["effects"] for o in holding):
+            out.append({"effect": s["name"], "shows_in": [o["heldout"] for o in holding]})
+    return out
 
 
 def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
@@ -100,7 +124,7 @@ def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
     """One outer group: the selection on the other units, measured on the group."""
     sel = yield from select(sim, base, inner, inner, candidates, MAX_INNER)
     yield [(sel.final_table, OUTER, held), (base, OUTER, held), (base, HELD, held)]
-    return {"heldout": ", ".join(sim.units[u].label for u in held),
+    return {"heldout": ", ".join(sim.units[u].label for u in held), "units": list(held),
             "effects": [s["name"] for s in sel.steps],
             "params": {s["name"]: s["params"] for s in sel.steps},
             "gap_before": sim.gap(base, OUTER, held),

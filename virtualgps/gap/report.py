@@ -76,6 +76,15 @@ p.note { font-size: 0.9em; color: #444; max-width: 60em; }
 """
 
 
+def not_judged_notes(outer: dict) -> list[str]:
+    """One sentence per added effect the outer test cannot judge (``outer.not_judged``)."""
+    return [f"the outer test cannot judge {n['effect']}: it shows only in "
+            f"{'; '.join(n['shows_in'])}, and the choice made without that data did not add "
+            f"it (seen once, it cannot be both chosen and held out); its held-out gain comes "
+            f"from the inner folds alone, and logs that show it more than once would let the "
+            f"outer test judge it" for n in outer.get("not_judged", [])]
+
+
 def _jsonable(x: Any) -> Any:
     """Plain JSON values: numpy scalars and arrays converted, NaN and infinities as null."""
     if isinstance(x, dict):
@@ -326,6 +335,7 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
     else:
         held = (f"Gap score of the profile under test: <b>{_fmt(report.get('gap_baseline'))}"
                 "</b>. No held-out test of effects was possible.")
+    held += "".join(f" {html.escape(n[0].upper() + n[1:])}." for n in not_judged_notes(outer))
     warnings = "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>"
                        for w in design.get("warnings", []))
     warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "

@@ -474,6 +474,10 @@ def entry(tr: Tried, sim: Simulator, folds: list[list[int]], fitted: Fitted | No
         "tied_with": list(tr.tied_with),
         "parameters": c.complexity,
         "_overrides": list(tr.fold_overrides),
+        # the held-out units it changes (by FLAT_MIN or more): where it shows
+        "_shows_in": sorted(u for f, fold in enumerate(folds)
+                            if np.isfinite(tr.before[f] - tr.after[f])
+                            and abs(tr.before[f] - tr.after[f]) >= FLAT_MIN for u in fold),
     }
     if fitted is not None:
         out["fit"] = fitted.public()

@@ -277,6 +277,8 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
                 "outer_reduction": (report.get("outer") or {}).get("reduction"),
                 "outer_interval": (report.get("outer") or {}).get("interval"),
+                "outer_not_judged": [n["effect"] for n in
+                                     (report.get("outer") or {}).get("not_judged", [])],
                 "where_rows": len(report["where"]),
                 "where_outside": sum(w["outside"] for w in report["where"]),
                 "seed_holdout": holdout_counts(report["band"]),

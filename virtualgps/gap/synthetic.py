@@ -412,6 +412,7 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "covered": covered(injected, intervals, grids),
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
         "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
+        "outer_not_judged": [n["effect"] for n in outer.get("not_judged", [])],
         "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
         "seed_holdout": holdout_counts(report["band"]),
         "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],

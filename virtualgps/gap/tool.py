@@ -29,6 +29,7 @@ from virtualgps.gap.ingest import ingest_notes
 from virtualgps.gap.jobs import ModelThread, modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.observed import Obs, RunView
+from virtualgps.gap.report import not_judged_notes
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
 from virtualgps.gap.where import autocorr_time_s, errors_enu, tracked_fractions
@@ -612,6 +613,7 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
                      f"({outer['groups']} outer groups; {scheme})")
     else:
         lines.append(f"profile {report['profile']}: gap {_num(report['gap_baseline'])}")
+    lines += [f"  note: {n}" for n in not_judged_notes(outer)]
     lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
     if note := holdout_warning(report.get("band", {})):
         lines.append(f"  warning: {note}")
