@@ -415,6 +415,30 @@ def test_nmea_log_as_geodetic_track(tmp_path):
     assert abs(tr.xyz[1, 2] - (55.4 + float(geodesy.geoid_sep_m(lat, lon)))) < MM
 
 
+def test_gzip_compressed_logs_read_as_the_plain_ones(tmp_path):
+    """A log kept compressed (``.jsonl.gz``, ``.nmea.gz``, or a gzip file under any name) reads
+    as the plain file; a truncated one is one clear error naming the file."""
+    import gzip
+
+    text = '{"t": 1.0, "x": 0, "y": 0, "z": 0}\n{"t": 2.0, "x": 1, "y": 2, "z": 3}\n'
+    plain = tmp_path / "poses.jsonl"
+    plain.write_text(text)
+    packed = tmp_path / "poses.jsonl.gz"
+    packed.write_bytes(gzip.compress(text.encode()))
+    a, b = pose_logs.read_pose_log(plain), pose_logs.read_pose_log(packed)
+    assert b.t_unix_s.tolist() == a.t_unix_s.tolist() and b.xyz.tolist() == a.xyz.tolist()
+    body = "".join(nmea.format_sentence(s) for s in (
+        "GPGGA,120000.000,5208.4040,N,01138.5946,E,1,06,0.94,55.3,M,44.7,M,,",
+        "GPRMC,120000.000,A,5208.4040,N,01138.5946,E,1.00,90.00,260317,,,A"))
+    (tmp_path / "ref.log").write_bytes(gzip.compress(body.encode()))
+    assert nmea.read_text_lines(tmp_path / "ref.log") == body.replace("\r", "").split("\n")
+    assert pose_logs.read_pose_log(tmp_path / "ref.log").frame == "geodetic"
+    cut = tmp_path / "cut.jsonl.gz"
+    cut.write_bytes(packed.read_bytes()[:20])
+    with pytest.raises(InputFileError, match="cut.jsonl.gz.*does not decompress"):
+        pose_logs.read_pose_log(cut)
+
+
 def test_real_span_reference_log(shared_data):
     path = shared_data / "gsdc-2020-05-14-mtv" / "SPAN_Pixel4_1Hz.nmea"
     tr = pose_logs.read_pose_log(path)

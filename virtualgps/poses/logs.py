@@ -41,8 +41,9 @@ _NMEA_RE = re.compile(r"\$[A-Z]{2}[A-Z]{3},")
 
 
 def _detect_format(path: Path, lines: list[str]) -> str:
-    """``jsonl``, ``csv``, ``tum`` or ``nmea`` from the extension, else from the content."""
-    ext = path.suffix.lower()
+    """``jsonl``, ``csv``, ``tum`` or ``nmea`` from the extension (before a ``.gz``), else
+    from the content."""
+    ext = (path.with_suffix("") if path.suffix.lower() == ".gz" else path).suffix.lower()
     if ext in (".jsonl", ".ndjson", ".json"):
         return "jsonl"
     if ext == ".csv":

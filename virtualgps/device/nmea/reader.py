@@ -9,7 +9,10 @@ One pass groups sentences into epochs (:func:`_read_epochs`); two views of it:
 
 from __future__ import annotations
 
+import errno
+import gzip
 import math
+import zlib
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -553,10 +556,21 @@ def nmea_fixes_from_lines(
 def read_text_lines(path: str | Path) -> list[str]:
     """Read a text file as lines, undecodable bytes replaced (real logs hold binary noise).
 
-    Lines are split on LF only (CR stripped), so line numbers match what editors show.
+    A gzip-compressed file (by its magic bytes, whatever its name) is read decompressed:
+    logs are often kept as ``.nmea.gz``. Lines are split on LF only (CR stripped), so line
+    numbers match what editors show.
+
+    Raises
+    ------
+    OSError : unreadable, or a gzip file that does not decompress (a truncated download)
     """
     with open(path, "rb") as f:
         data = f.read()
+    if data[:2] == b"\x1f\x8b":
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as e:
+            raise OSError(errno.EIO, f"a gzip file that does not decompress ({e})") from None
     return [ln.rstrip("\r") for ln in data.decode("utf-8", errors="replace").split("\n")]
 
 
