@@ -398,6 +398,17 @@ def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
     report["causes"][0]["read_as"] = ["latency"]
     assert "read as an output latency (latency was added); a log-vs-truth clock offset of the " \
         "same size moves the fixes alike" in "\n".join(tool.summary_lines(report))
+    # a velocity-aided filter follows the motion and smooths only the error: added, it reads
+    # no lag (the GSDC drive with a 0.3 s delay injected added one, and the lag stood unread)
+    from virtualgps.gap import causes as cz
+
+    aided = {"name": "nav_filter", "params": {"tau_s": 2.5, "velocity_aided": True}}
+    assert not cz.lags_motion(aided)
+    assert cz.lags_motion(dict(aided, params={"tau_s": 2.5, "velocity_aided": False}))
+    assert cz.lags_motion({"name": "latency", "params": {"latency_s": 0.4}})
+    report["causes"][0]["read_as"] = []
+    assert ("by 1.20 s: a clock offset or an output latency: no effect that lags the fixes "
+            "was added") in "\n".join(tool.summary_lines(report))
 
 
 def test_bad_truth_specs_are_clear_errors():

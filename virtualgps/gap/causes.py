@@ -289,12 +289,21 @@ def clock_note(cause: dict) -> str | None:
 LAG_EFFECTS = ("latency", "nav_filter")
 
 
+def lags_motion(entry: dict) -> bool:
+    """Whether an added effect (a report entry) makes the fixes lag the truth's motion:
+    ``latency``, and a ``nav_filter`` that low-passes the position itself. A velocity-aided
+    filter follows the motion with the receiver's own velocity and smooths only the error
+    (receiver/params.py, NavFilterParams): it explains smooth fixes, not a lag."""
+    return entry["name"] == "latency" or (
+        entry["name"] == "nav_filter" and not entry.get("params", {}).get("velocity_aided"))
+
+
 def lag_reading(cause: dict) -> str:
     """What a ``time_offset`` cause's lag was read as, by the lag effects the diagnosis added
     (its ``read_as``, set with the report; ``or_read_as``: those of an equally good
     explanation, where they differ): a filter smooths the fixes as well, which a clock offset
     does not; a pure delay and a clock offset cannot be told apart."""
-    taken = cause.get("read_as") or []
+    taken = cause.get("read_as")
     if taken == ["nav_filter"]:
         said = ("read as a navigation filter's lag: nav_filter was added, the fixes being "
                 "smoothed as well, which a clock offset does not do")
@@ -303,6 +312,9 @@ def lag_reading(cause: dict) -> str:
                 "of the same size moves the fixes alike: check both clocks")
     elif taken:
         said = "read as " + " and ".join(taken) + " together (both were added)"
+    elif taken is not None:  # (the diagnosis chose, and added none of them)
+        said = ("a clock offset or an output latency: no effect that lags the fixes was "
+                "added")
     else:
         said = "a clock offset or an output latency"
     other = cause.get("or_read_as") or []

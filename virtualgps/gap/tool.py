@@ -340,7 +340,7 @@ def _report(runs, runs_in, notes, tle, profile, source, opts, where, alpha, hold
         alt = sel.alternative(full.paths)
         for c in causes:
             if c["name"] == "time_offset":
-                c["read_as"] = [s["name"] for s in full.steps if s["name"] in cz.LAG_EFFECTS]
+                c["read_as"] = [s["name"] for s in full.steps if cz.lags_motion(s)]
                 other = [n for n in alt["effects"] if n in cz.LAG_EFFECTS] if alt else []
                 if alt and other != c["read_as"]:
                     c["or_read_as"] = other
