@@ -432,7 +432,7 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
         _table(selfcheck.get("trials", []), ["injected", "scenario", "params", "ranked_first",
                                              "accepted", "recovered", "recovered_interval",
                                              "covered", "gap_before", "gap_after",
-                                             "where_outside"]),
+                                             "outer_not_judged", "where_outside"]),
     ]
     if selfcheck.get("real_bases_note"):
         body.append(f"<p>{html.escape(selfcheck['real_bases_note'])}</p>")
