@@ -876,6 +876,13 @@ def test_an_effect_seen_once_is_not_claimed_by_the_outer_test():
              {"name": "sbas", "_shows_in": []}]
     blind = diagnose.not_judged(steps, outer)
     assert blind == [{"effect": "cold_start", "shows_in": ["time block 1/4"]}]
+    # shown in every block and chosen by no group, it is another explanation's, not unseen
+    steps[1]["_shows_in"] = [0, 1, 2, 3]
+    for o in outer:
+        o["effects"] = ["correlated_error"]
+    assert diagnose.not_judged(steps, outer) == []
+    for o in outer[1:]:
+        o["effects"].append("cold_start")
     # with the power-on in a second run's block too, a group that holds one chose it
     outer[0]["units"] = [0, 4]
     outer[1]["units"] = [1, 5]

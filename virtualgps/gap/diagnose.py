@@ -97,11 +97,13 @@ class Choice:
 
 
 def not_judged(steps: list[dict], outer: list[dict]) -> list[dict]:
-    """The added effects the outer test cannot judge: every outer group that holds a unit
-    where the effect shows (its held-out gap changes by FLAT_MIN or more) was chosen without
-    it. Such an effect shows in data seen once (a run's one power-on, the one stop of a
-    drive): held out, the choice made on the other units had nothing to add it for, so the
-    outer test's reduction leaves it out, however right it is.
+    """The added effects the outer test cannot judge: the units where the effect shows (its
+    held-out gap changes by FLAT_MIN or more) lie in one outer group, whose choice was made
+    without it. Such an effect shows in data seen once (a run's one power-on, the one stop of
+    a drive): held out, the choice made on the other units had nothing to add it for, so the
+    outer test's reduction leaves it out, however right it is. (An effect that shows in
+    several groups and none chose is no such case: they preferred another explanation, which
+    ``outer_share`` says.)
 
     steps : the full selection's added effects (entries with ``_shows_in``: unit indices)
     outer : the outer groups (``units``: unit indices held out; ``effects``: their choice)
@@ -114,7 +116,7 @@ def not_judged(steps: list[dict], outer: list[dict]) -> list[dict]:
     for s in steps:
         shows = set(s.get("_shows_in", ()))
         holding = [o for o in outer if shows & set(o["units"])]
-        if holding and not any(s["name"] in o["effects"] for o in holding):
+        if len(holding) == 1 and s["name"] not in holding[0]["effects"]:
             out.append({"effect": s["name"], "shows_in": [o["heldout"] for o in holding]})
     return out
 
