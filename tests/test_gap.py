@@ -5,6 +5,7 @@ ingest of real logs, the withheld-effect self-check, and the real withheld cases
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -708,6 +709,25 @@ def test_a_drive_far_from_the_origin_blames_the_flat_earth_not_the_truth(shared_
     assert cep["real"] < 1.5  # the phone's own error, about the SPAN truth
 
 
+def test_the_real_bases_slow_offset_is_a_gauss_markov_process_of_its_tau_and_sigma():
+    """The slow offset injected into a real log: per horizontal axis a stationary first-order
+    Gauss-Markov process, its standard deviation sigma and its autocorrelation e^-1 at a lag of
+    tau (closed form), whatever the steps between fixes."""
+    from virtualgps.gap import selfcheck_real as sr
+
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.choice([1.0, 1.0, 2.0], size=40000))
+    lat, lon = np.full(t.size, 37.4), np.full(t.size, -122.1)
+    nlat, nlon = sr.inject("correlated_error", 50.0, t, lat, lon, np.zeros(t.size), 3.0,
+                           np.random.default_rng(4))
+    off = sr._enu(nlat, nlon, 37.4, -122.1)
+    assert np.std(off, axis=0) == pytest.approx([3.0, 3.0], rel=0.1)
+    k = np.searchsorted(t, t + 50.0)[: t.size // 2]  # the fix 50 s later (or the next one)
+    i = np.arange(k.size)[t[k] - t[: k.size] == 50.0]
+    rho = [np.corrcoef(off[i, a], off[k[i], a])[0, 1] for a in (0, 1)]
+    assert rho == pytest.approx([math.exp(-1.0)] * 2, abs=0.08)
+
+
 def test_the_real_bases_injections_print_what_a_receiver_prints(tmp_path):
     """A cold start blanks the fixes of a log's first seconds across midnight, as a receiver
     without a fix prints them; moved fixes keep the log's digits. pynmeagps reads every
@@ -896,14 +916,21 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
     untouched log did not need, its length near the injected one; the filter is refitted as a
     filter of the motion near the injected time constant; the wrong truth is named as a truth
     offset and no receiver effect absorbs it; the late first fix is a cold start whose
-    interval holds it."""
+    interval holds it; a slow offset is a correlated error."""
     from virtualgps.gap import selfcheck, selfcheck_real
 
     rows, note = selfcheck_real.run(shared_data, dg.Options(seeds=12, jobs=2), 1, tmp_path,
                                     effects=("latency", "nav_filter", "truth_offset",
-                                             "cold_start"))
+                                             "cold_start", "correlated_error"))
     assert note is None
-    delay, filt, off, cold = rows
+    delay, filt, off, cold, slow = rows
+    # a slow offset, against holux-m1000 with its own correlated error withheld: named as one,
+    # its time constant inside the fit's interval (the untouched log against that profile
+    # adds a filter of the phone's smooth errors, not a correlated error)
+    assert slow["scenario"].endswith("holux-m1000-without-correlated_error")
+    assert "correlated_error" not in slow["base_accepted"]
+    assert slow["success"] and slow["added_first"] == "correlated_error", slow
+    assert slow["covered"] == {"tau_s": True}
     assert cold["success"] and cold["added_first"] == "cold_start", cold
     assert cold["recovered"]["power_on"] == "cold" and cold["covered"] == {"ttff_cold_s": True}
     assert delay["base_accepted"] == ["noise_level"]

@@ -12,7 +12,11 @@ at drawn parameters:
 - ``static_hold``: the fix is frozen while the log's own speed is below a threshold;
 - ``truth_offset``: the truth is moved by several metres (a wrong truth);
 - ``cold_start``: the log's first T seconds print no fix (GGA quality 0, RMC void), as a
-  receiver powered on with the log that needs T seconds for its first fix.
+  receiver powered on with the log that needs T seconds for its first fix;
+- ``correlated_error``: a slow offset, a first-order Gauss-Markov process of time constant tau
+  and a drawn sigma per horizontal axis, is added to every fix. ``holux-m1000`` already has
+  a correlated error, so this trial (and its untouched log) is diagnosed against it with that
+  effect withheld (DESIGN 7.4).
 
 A trial is right when the injected effect is the first effect added that the untouched log did
 not add (or, for one it added too, when the new fit's interval holds the injected value), and
@@ -33,6 +37,7 @@ import numpy as np
 from virtualgps import geodesy
 from virtualgps.device.nmea import nmea_checksum, read_text_lines
 from virtualgps.gap import diagnose as dg
+from virtualgps.gap import effects as fx
 from virtualgps.gap.bands import holdout_counts
 from virtualgps.gap.ingest import read_real_log
 from virtualgps.poses import logs as pose_logs
@@ -40,7 +45,10 @@ from virtualgps.poses import pose
 
 GSDC = "gsdc-2020-05-14-mtv"
 BASE_PROFILE = "holux-m1000"
-REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset", "cold_start")
+REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset", "cold_start",
+                "correlated_error")
+# The tables that withhold an injected effect the base profile has (DESIGN 7.4)
+WITHHOLD = {"correlated_error": {"correlated_error": {"enabled": False}}}
 MPS_PER_KNOT = 1852.0 / 3600.0
 
 
@@ -143,10 +151,12 @@ def _geo(en, lat0, lon0):
 
 
 def inject(effect: str, value: float, t: np.ndarray, lat: np.ndarray, lon: np.ndarray,
-           speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+           speed_mps: np.ndarray, sigma_m: float = 4.0,
+           rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The fixes a receiver with ``effect`` at ``value`` would have printed instead.
 
     t, lat, lon, speed_mps : (n,) the log's fixed epochs (time, position, its own speed)
+    sigma_m, rng : ``correlated_error``'s sigma per horizontal axis (metres) and its draws
     """
     lat0, lon0 = float(lat[0]), float(lon[0])
     en = _enu(lat, lon, lat0, lon0)
@@ -162,6 +172,14 @@ def inject(effect: str, value: float, t: np.ndarray, lat: np.ndarray, lon: np.nd
         for k in range(1, t.size):
             if speed_mps[k] < value:
                 out[k] = out[k - 1]
+    elif effect == "correlated_error":
+        rng = rng if rng is not None else np.random.default_rng()
+        off = np.empty_like(en)
+        off[0] = rng.normal(0.0, sigma_m, 2)
+        for k in range(1, t.size):  # (stationary: the same sigma at any step)
+            a = math.exp(-(t[k] - t[k - 1]) / value)
+            off[k] = a * off[k - 1] + math.sqrt(1.0 - a * a) * sigma_m * rng.normal(size=2)
+        out = en + off
     else:
         raise ValueError(effect)
     return _geo(out, lat0, lon0)
@@ -182,6 +200,20 @@ def _half(offset: dict, axis: str) -> float:
     return (iv[1] - iv[0]) / 2.0 if iv else 0.0
 
 
+def withheld_profile(effect: str, work: Path) -> str:
+    """The profile an effect's trials are diagnosed against: :data:`BASE_PROFILE`, or where it
+    has the effect, a copy with it withheld (written into ``work``; its path)."""
+    if effect not in WITHHOLD:
+        return BASE_PROFILE
+    from virtualgps.receiver.profiles import profile_path, read_toml
+
+    table = fx.apply(read_toml(profile_path(BASE_PROFILE)), WITHHOLD[effect])
+    table["name"] = f"{BASE_PROFILE}-without-{effect}"
+    path = work / f"{table['name']}.toml"
+    path.write_text(fx.to_toml(table), encoding="utf-8")
+    return str(path)
+
+
 def run(data: Path, opts: dg.Options, trials: int, work: Path,
         progress: Callable[[str], None] | None = None,
         effects: tuple[str, ...] = REAL_EFFECTS) -> tuple[list[dict], str | None]:
@@ -196,16 +228,25 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
         return [], f"real-log bases not run: {d} not found"
     work.mkdir(parents=True, exist_ok=True)
 
-    def diagnose(real_path: Path, truth_spec: str) -> dict:
+    def diagnose(real_path: Path, truth_spec: str, profile: str) -> dict:
         inp = tool.GapInputs(real=(str(real_path),), truth=(truth_spec,), scene="none",
-                             tle=str(tle), profile=BASE_PROFILE)
+                             tle=str(tle), profile=profile)
         return tool.diagnose(inp, opts)[0]
 
-    base = diagnose(real, str(truth))
-    base_added = [e["name"] for e in base["effects"] if e.get("accepted")]
-    base_off = next((c for c in base.get("causes", []) if c["name"] == "truth_offset"), {})
-    if progress:
-        progress(f"self-check real base gsdc: the untouched log adds {base_added or 'nothing'}")
+    bases: dict[str, tuple[list[str], dict]] = {}
+
+    def untouched(profile: str) -> tuple[list[str], dict]:
+        """What the untouched log adds against ``profile``, and its truth offset."""
+        if profile not in bases:
+            base = diagnose(real, str(truth), profile)
+            bases[profile] = (
+                [e["name"] for e in base["effects"] if e.get("accepted")],
+                next((c for c in base.get("causes", []) if c["name"] == "truth_offset"), {}))
+            if progress:
+                progress(f"self-check real base gsdc against {Path(profile).stem}: the "
+                         f"untouched log adds {bases[profile][0] or 'nothing'}")
+        return bases[profile]
+
     ep, *_ = read_real_log(real)
     fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
     t, lat, lon = ep.t_unix_s[fix], ep.lat_deg[fix], ep.lon_deg[fix]
@@ -214,6 +255,8 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
     track = pose_logs.read_pose_log(truth)
     rows = []
     for effect in effects:
+        profile = withheld_profile(effect, work)
+        base_added, base_off = untouched(profile)
         for i in range(trials):
             rng = np.random.default_rng([synthetic.SEED_BASE, 77, REAL_EFFECTS.index(effect), i])
             tag = f"real-gsdc-{effect}-{i}"
@@ -223,7 +266,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 east, north = size * math.sin(ang), size * math.cos(ang)
                 tpath = work / f"{tag}-truth.jsonl"
                 _truth_jsonl(track, east, north, tpath)
-                report = diagnose(real, str(tpath))
+                report = diagnose(real, str(tpath), profile)
                 injected = {"east_m": round(east, 2), "north_m": round(north, 2)}
                 off = next((c for c in report.get("causes", []) if c["name"] == "truth_offset"),
                            None)
@@ -240,19 +283,22 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                              if off is not None else {})
             else:
                 lo_hi = {"latency": (0.8, 2.5), "nav_filter": (1.5, 4.0),
-                         "static_hold": (0.8, 1.5), "cold_start": (25.0, 60.0)}[effect]
+                         "static_hold": (0.8, 1.5), "cold_start": (25.0, 60.0),
+                         "correlated_error": (60.0, 600.0)}[effect]
                 value = round(float(rng.uniform(*lo_hi)), 2)
+                sigma = round(float(rng.uniform(2.5, 6.0)), 2)  # (correlated_error's)
                 path = work / f"{tag}.nmea"
                 if effect == "cold_start":  # (whole seconds: the log's epochs are 1 s apart)
                     value = float(round(value))
                     new_lines = blank_fixes(lines, float(ep.t_unix_s[0]), value)
                 else:
-                    nlat, nlon = inject(effect, value, t, lat, lon, speed)
+                    nlat, nlon = inject(effect, value, t, lat, lon, speed, sigma, rng)
                     new_lines = rewrite_fixes(lines, t, nlat, nlon)
                 path.write_text("\n".join(new_lines) + "\n")
-                report = diagnose(path, str(truth))
+                report = diagnose(path, str(truth), profile)
                 key = {"latency": "latency_s", "nav_filter": "tau_s",
-                       "static_hold": "threshold_mps", "cold_start": "ttff_cold_s"}[effect]
+                       "static_hold": "threshold_mps", "cold_start": "ttff_cold_s",
+                       "correlated_error": "tau_s"}[effect]
                 injected = {key: value}
                 added = [e["name"] for e in report["effects"] if e.get("accepted")]
                 params, intervals, grids = synthetic.recovered((effect,), report)
@@ -267,7 +313,9 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                      else ranked[0])
             rows.append({
                 "injected": f"real:gsdc:{effect}", "kind": "real", "effects": [effect],
-                "scenario": "gsdc drive, holux-m1000", "params": injected,
+                "scenario": f"gsdc drive, {Path(profile).stem}",
+                "params": (injected | {"sigma_m": sigma} if effect == "correlated_error"
+                           else injected),
                 "ranked": ranked, "accepted": accepted, "base_accepted": base_added,
                 "ranked_first": first, "added_first": ranked[0], "success": success,
                 "alternative": (report.get("alternative") or {}).get("effects"),
