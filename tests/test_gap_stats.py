@@ -106,14 +106,18 @@ def test_rows_judged_together_flag_about_q_of_null_reports():
     any row (independent rows; the rows of a real report are positively dependent)."""
     rng = np.random.default_rng(7)
     reports, any_flag, flagged = 300, 0, 0
-    for _ in range(reports):
+    for i in range(reports):
         rows = []
         for k in range(200):
             d = np.exp(rng.normal(1.0, 0.3, 21))
             rows.append({"metric": "cep50_m", "segment": f"s{k}", "real": float(d[0]),
                          "p_value": bands.judge("cep50_m", d[0], d[1:]).p, "z": 0.0,
                          "_sims": d[1:]})
-        out, _, _ = where.finish_rows(rows)
+        full = where.finish_rows([dict(r) for r in rows]) if i == 0 else None
+        out, _, checked = where.finish_rows(rows, holdout=False)
+        if full is not None:  # (the seed holdout, left out, leaves the rows alone)
+            assert checked == {} and full[2]["reports"] == 20
+            assert [r["outside"] for r in out] == [r["outside"] for r in full[0]]
         n = sum(r["outside"] for r in out)
         any_flag += n > 0
         flagged += n

@@ -194,10 +194,13 @@ def pooled(runs: list[Run], sims: list[Obs], errs: list[np.ndarray]
     return (view, obs(sims), cat([r.err_real for r in runs], axis=1), cat(errs, axis=1))
 
 
-def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float, dict]:
+def where_table(runs: list[Run], sims: list[Obs], holdout: bool = True
+                ) -> tuple[list[dict], float, dict]:
     """The located gaps of every segment (pooled over runs, and per run), judged together.
 
     sims : each run's ensemble as :func:`virtualgps.gap.runs.sim_obs` of its view
+    holdout : check the bands on the seeds themselves (the report's table; the calibrated
+        profile's table, which only says what stays unexplained, needs no such check)
 
     Returns
     -------
@@ -206,7 +209,7 @@ def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float, di
     alpha_row : the per-row level the rows were judged at (:func:`virtualgps.gap.where.
         finish_rows`)
     holdout : the bands checked on the seeds themselves (:func:`virtualgps.gap.where.
-        seed_holdout`)
+        seed_holdout`; {} without ``holdout``)
     """
     errs = [errors_enu(r.view, s) for r, s in zip(runs, sims, strict=True)]
     view, sim, er, es = pooled(runs, sims, errs)
@@ -229,7 +232,7 @@ def where_table(runs: list[Run], sims: list[Obs]) -> tuple[list[dict], float, di
             ones = np.ones(r.view.t_unix_s.size, bool)
             rows += judged_rows(segment_stats(r.view, s, r.err_real, e, ones),
                                 f"run:{r.view.name}")
-    return finish_rows(rows)
+    return finish_rows(rows, holdout)
 
 
 def not_assessed(runs: list[Run]) -> list[dict]:

@@ -288,7 +288,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
         final_ens = ensembles(runs, final_table, range(opts.seeds), opts.jobs, opts.dask,
                               source)[0]
         final_sims = [sim_obs(final_ens[i], r.view) for i, r in enumerate(runs)]
-    final_job = judging.submit(dg.where_table, runs, final_sims) if changed else None
+    final_job = (judging.submit(dg.where_table, runs, final_sims, holdout=False) if changed
+                 else None)
     # (the final figures' arrays are computed meanwhile)
     figures = with_final(figures_job.result(), runs, final_sims, choice)
     where, alpha, holdout = where_job.result()

@@ -612,9 +612,10 @@ def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
     return rows
 
 
-def finish_rows(rows: list[dict]) -> tuple[list[dict], float, dict]:
+def finish_rows(rows: list[dict], holdout: bool = True) -> tuple[list[dict], float, dict]:
     """Judge a report's rows together: the Benjamini-Hochberg level over their p-values, each
-    row's band at that level and whether the real value leaves it (``outside``).
+    row's band at that level and whether the real value leaves it (``outside``); with
+    ``holdout``, the bands checked on the seeds themselves too.
 
     Returns
     -------
@@ -622,9 +623,9 @@ def finish_rows(rows: list[dict]) -> tuple[list[dict], float, dict]:
         ``q_value`` and ``band95`` (one row's own 95 % prediction band, for reading; ``_sims``
         dropped)
     alpha_row : the per-row level used
-    holdout : :func:`seed_holdout` of the rows
+    holdout : :func:`seed_holdout` of the rows ({} without ``holdout``)
     """
-    holdout = seed_holdout(rows)
+    checked = seed_holdout(rows) if holdout else {}
     p = np.array([r["p_value"] for r in rows], dtype=float)
     alpha = bh_alpha(p)
     fin = np.isfinite(p)
@@ -643,7 +644,7 @@ def finish_rows(rows: list[dict]) -> tuple[list[dict], float, dict]:
         outside = bool(np.isfinite(r["p_value"]) and (r["real"] < lo or r["real"] > hi))
         out.append(r | {"sim_lo": lo, "sim_hi": hi, "outside": outside, "q_value": qv,
                         "band95": list(band(r["metric"], sims, 0.05))})
-    return out, alpha, holdout
+    return out, alpha, checked
 
 
 def seed_holdout(rows: list[dict]) -> dict:
