@@ -354,7 +354,8 @@ def test_a_log_of_rmc_alone_has_fixes_and_says_what_it_cannot_assess(tmp_path):
     view = SimpleNamespace(assess={"gsv": True, "cn0": True, "gsa": True, "gga": False},
                            real=SimpleNamespace(sats_used=np.ones((1, 4)), hdop=np.ones(4)),
                            reference="truth", speed_mps=np.zeros(4))
-    reasons = {n["metric"]: n["reason"] for n in not_assessed([SimpleNamespace(view=view)])}
+    reasons = {n["metric"]: n["reason"]
+               for n in not_assessed([SimpleNamespace(view=view, info={})])}
     assert set(reasons) == {"up_p68_m", "dgps_fraction", "lag_s"}
     assert reasons["dgps_fraction"].startswith("no GGA")
 
@@ -822,6 +823,80 @@ def test_gap_takes_the_tle_set_replay_takes(shared_data):
     assert "2017" in Path(tle).name
 
 
+def test_the_separation_of_a_logs_satellites_from_the_simulated_sky():
+    """The angle between where a log's GSV puts a PRN and where the ephemeris does, against the
+    spherical law of cosines; a PRN the log never gives angles for is not compared; most PRNs
+    beyond SKY_SEP_MAX_DEG make the sky wrong, a few only those PRNs."""
+    from types import SimpleNamespace
+
+    n = 4
+    # the log's columns: PRN 7, 3, 9, 5 (5 listed without angles, as MTK before its almanac)
+    log_el = np.tile([30.0, 10.0, 45.0, np.nan], (n, 1))
+    log_az = np.tile([0.0, 120.0, 200.0, np.nan], (n, 1))
+    log = SimpleNamespace(prn=np.array([7, 3, 9, 5]), el_deg=log_el, az_deg=log_az)
+    prn = np.array([3, 5, 7, 9, 11])  # the simulator's columns; 11 the log never lists
+    el = np.tile([20.0, 50.0, 30.0, 45.0, 60.0], (n, 1))
+    az = np.tile([120.0, 10.0, 90.0, 201.0, 0.0], (n, 1))
+    el[0, 0] = 70.0  # one epoch far off: the median over the run holds
+    sep = runs._sky_separation_deg(log, prn, el, az)
+
+    def law_of_cosines(e1, a1, e2, a2):
+        e1, a1, e2, a2 = map(math.radians, (e1, a1, e2, a2))
+        return math.degrees(math.acos(math.sin(e1) * math.sin(e2)
+                                      + math.cos(e1) * math.cos(e2) * math.cos(a1 - a2)))
+
+    assert sep[0] == pytest.approx(10.0)
+    assert np.isnan(sep[1]) and np.isnan(sep[4])
+    assert sep[2] == pytest.approx(law_of_cosines(30, 0, 30, 90))  # 75.5 deg
+    assert sep[3] == pytest.approx(law_of_cosines(45, 200, 45, 201))  # 0.71 deg
+    info = runs._sky_info(prn, sep)
+    assert info["prns_compared"] == 3 and info["misplaced_prns"] == [3, 7] and info["wrong"]
+    assert not runs._sky_info(prn, np.array([1.0, np.nan, 9.0, 0.5, 2.0]))["wrong"]
+
+
+def test_a_sky_that_is_not_the_logs_is_named_and_no_effect_is_fitted_to_it(shared_data):
+    """The MT3339 hour (2017-03-11) against the 2017-03-26 set: its GSV angles lie 0.4 deg from
+    the simulated sky (GSV's whole degrees), nothing misplaced. Against the 2020 set (three years
+    on, its sky shifted to the same sidereal time: plausible, not the log's) most of its PRNs
+    stand over 5 deg off: the cause says so, no satellite's tracking is compared, and the
+    effects placed on the sky are not tried (a wrong sky was taken for an elevation mask)."""
+    from virtualgps.gap import causes as cz
+    from virtualgps.sky.ephemeris import BUNDLED_EPHEMERIS_DIR
+
+    right, _, _ = _prepared_hour(shared_data, str(BUNDLED_EPHEMERIS_DIR / "gps-ops-2017-03-26.tle"))
+    sky = right[0].info["sky"]
+    assert sky["prns_compared"] >= 10 and sky["median_sep_deg"] < 1.0
+    assert sky["misplaced_prns"] == [] and cz.sky(right[0]) is None
+    assert right[0].view.sat_ok.any()
+
+    wrong, table, _ = _prepared_hour(shared_data,
+                                     str(BUNDLED_EPHEMERIS_DIR / "gps-ops-2020-05-14T22Z.tle"))
+    cause = cz.sky(wrong[0])
+    assert cause is not None and cause["most"], wrong[0].info["sky"]
+    assert 2 * len(cause["misplaced_prns"]) > cause["prns_compared"]
+    assert "not the log's" in cause["what"] and not wrong[0].view.sat_ok.any()
+    reasons = {n["metric"]: n["reason"] for n in dg.not_assessed(wrong)}
+    assert "causes: sky" in reasons["tracked_agreement"]
+    assert "causes: sky" in reasons["used_el_p05_deg"]
+    why = cz.sky_wrong([cause])
+    cands, skipped = fx.candidates(table, False, None, True, "G", "G", sky_wrong=why)
+    assert {c.name for c in cands}.isdisjoint(fx.SKY_PLACED)
+    assert skipped["elevation_mask"] == why and skipped["sky_mask"] == why
+    assert {c.name for c in cands} >= {"nav_filter", "latency", "cold_start"}
+    # the terminal names the cause and what was not tried; the page lists it
+    from virtualgps.gap import report as rp
+    from virtualgps.gap import tool
+
+    report = {"headline": [], "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [], "located": [], "profile": "holux-m1000",
+              "gap_baseline": 1.0, "causes": [cause], "candidates_skipped": skipped}
+    lines = tool.summary_lines(report)
+    assert f"  cause: hour_test_1: {cause['what']}" in lines
+    note = [ln for ln in lines if ln.startswith("  note: not tried on a sky")]
+    assert len(note) == 1 and "elevation_mask" in note[0] and "nav_filter" not in note[0]
+    assert rp._cause_rows(report)[0] == {"cause": "sky", "what": f"hour_test_1: {cause['what']}"}
+
+
 def _latency_trial(tmp_path: Path):
     """The self-check's first latency trial in the bundled scene (a 15-minute synthetic log
     with its truth, TLE set and profile)."""
@@ -945,16 +1020,16 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
     assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}
 
 
-def _prepared_hour(shared_data: Path) -> tuple[list, dict, str]:
+def _prepared_hour(shared_data: Path, tle: str | None = None) -> tuple[list, dict, str]:
     """The MT3339 static hour prepared against ``holux-m1000`` (GPS): its runs, the profile
-    table and its source."""
+    table and its source. ``tle``: the TLE set (default: the one nearest the log's time)."""
     from virtualgps.gap import tool
     from virtualgps.gap.ensemble import ephemeris_of
     from virtualgps.gap.runs import prepare_runs
     from virtualgps.sky import ephemeris as eph
 
     inp = tool.GapInputs(real=(str(shared_data / "mt3339-static" / "hour_test_1.txt"),),
-                         truth=("static",), scene="none", tle=None, profile="holux-m1000")
+                         truth=("static",), scene="none", tle=tle, profile="holux-m1000")
     runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
     ephem = ephemeris_of(tle, "G")
 

@@ -17,6 +17,11 @@ named as such and measured, so that no effect of section 6 absorbs them.
 - ``constellations``: the real receiver tracks satellite systems the simulation does not (a
   phone's GLONASS beside GPS): satellites used, HDOP and tracking then differ for that reason,
   which no effect of a GPS receiver explains. Counted per run from the log's GSV and GSA.
+- ``sky``: the log's GSV puts satellites where the ephemeris does not (an ephemeris of another
+  time, a truth on another date or in another place, a satellite relocated or renumbered since
+  the TLE set): those satellites are left out of the tracking comparisons
+  (:data:`virtualgps.gap.runs.SKY_SEP_MAX_DEG`), so that no sky mask or elevation mask is
+  fitted to a sky that is not the log's.
 - ``time_offset``: a log-vs-truth clock offset moves every fix along the track by speed x
   offset. Beyond the ingest's threshold it is removed there; below it, it is measured per block
   (with an interval) and reported: an output latency looks exactly the same in positions, so
@@ -384,3 +389,37 @@ def constellations(name: str, prn: np.ndarray, in_view: np.ndarray, used: np.nda
                     "satellites used, HDOP and tracking differ for that reason; the "
                     "constellations effect is tried where the ephemeris holds their satellites "
                     "(--tle with a set of each system)"}
+
+
+def sky(run: Run) -> dict | None:
+    """The satellites a run's log puts elsewhere than the ephemeris does (None: none, or no GSV
+    angles; :func:`virtualgps.gap.runs.prepare_runs` leaves them out of the comparisons). Most
+    of them: the simulated sky is not the log's and no tracking is compared; a few: those
+    satellites are not (relocated or renumbered since the TLE set)."""
+    info = run.info.get("sky") or {}
+    off = info.get("misplaced_prns") or []
+    if not off:
+        return None
+    n, most = info["prns_compared"], info["wrong"]
+    head = (f"the log's satellites stand a median {info['median_sep_deg']:g} deg from where "
+            f"the ephemeris puts them ({len(off)} of {n} more than {info['max_sep_deg']:g} deg "
+            "off): the simulated sky is not the log's (an ephemeris of another time, a truth "
+            "on another date or in another place); no satellite's tracking is compared: "
+            "--tle with a set of the log's day (or its RINEX navigation file) would compare "
+            "them" if most else
+            f"PRN {', '.join(str(p) for p in off)} stand more than {info['max_sep_deg']:g} deg "
+            "from where the ephemeris puts them (relocated or renumbered since the TLE set): "
+            "left out of the tracking comparisons")
+    return {"name": "sky", "kind": "ephemeris", "run": run.view.name, "most": most,
+            "misplaced_prns": off, "prns_compared": n,
+            "median_sep_deg": info["median_sep_deg"], "what": head}
+
+
+def sky_wrong(causes: list[dict]) -> str | None:
+    """Why no effect that acts on where satellites stand is tried (some run's simulated sky is
+    not its log's: :func:`sky`), or None."""
+    wrong = [c["run"] for c in causes if c["name"] == "sky" and c["most"]]
+    if not wrong:
+        return None
+    return (f"the simulated sky is not the log's ({', '.join(wrong)}: see causes: sky): fitted "
+            "to it, an effect placed on the sky would explain that sky, not the receiver")

@@ -135,15 +135,18 @@ def _outer(sim: Simulator, base: dict, inner: list[int], held: list[int],
 
 def choose_effects(sim: Simulator, base: dict, opts: Options, has_mesh: bool, has_gsv: bool,
                    progress: Callable[[str], None] | None = None,
-                   systems: tuple[str, str] = ("", "G"), starts: bool = True) -> Choice:
+                   systems: tuple[str, str] = ("", "G"), starts: bool = True,
+                   sky_wrong: str | None = None) -> Choice:
     """The full selection (every unit; the calibrated profile and the ranking) and, where the
     design allows, the outer test, all simulated in shared batches. ``systems``: RINEX letters
     of the systems the logs list and of those the ephemeris holds (``constellations``);
-    ``starts``: some log starts at power-on (``cold_start``)."""
+    ``starts``: some log starts at power-on (``cold_start``); ``sky_wrong``: why the simulated
+    sky is not the logs' (no effect placed on it is tried), or None."""
     design: Design = sim.design
 
     def candidates(table: dict):
-        return fx.candidates(table, has_mesh, opts.effects, has_gsv, *systems, starts=starts)
+        return fx.candidates(table, has_mesh, opts.effects, has_gsv, *systems, starts=starts,
+                             sky_wrong=sky_wrong)
 
     units = list(range(len(design.units)))
     fit_units = ([len(design.units) + i for i in range(len(design.whole))]
@@ -238,6 +241,10 @@ def where_table(runs: list[Run], sims: list[Obs], holdout: bool = True
 def not_assessed(runs: list[Run]) -> list[dict]:
     """The metrics the real logs cannot support, with the reason."""
     out = []
+    # (every satellite the logs list stands elsewhere in the simulated sky: causes.sky)
+    sky = ("the logs' satellites stand where the ephemeris does not put them (see causes: sky)"
+           if any(r.info.get("sky", {}).get("misplaced_prns") for r in runs)
+           and not any(r.view.sat_ok.any() for r in runs) else None)
     if not any(r.view.assess["gsv"] for r in runs):
         for m in ("tracked_agreement", "tracked_share", "cn0_median_dbhz"):
             out.append({"metric": m, "reason": "no GSV sentence (satellites in view) in the "
@@ -245,9 +252,14 @@ def not_assessed(runs: list[Run]) -> list[dict]:
     elif not any(r.view.assess["cn0"] for r in runs):
         for m in ("tracked_agreement", "tracked_share", "cn0_median_dbhz"):
             out.append({"metric": m, "reason": "the real logs' GSV carry no SNR"})
+    elif sky:
+        for m in ("tracked_agreement", "tracked_share", "cn0_median_dbhz"):
+            out.append({"metric": m, "reason": sky})
     if not any(r.view.assess["gsa"] for r in runs):
         out.append({"metric": "used_el_p05_deg", "reason": "no GSA sentence (satellites used) "
                     "in the real logs"})
+    elif sky:
+        out.append({"metric": "used_el_p05_deg", "reason": sky})
     if not np.isfinite(np.concatenate([r.view.real.sats_used[0] for r in runs])).any():
         for m in ("sats_used_mean", "used_changes_per_min"):
             out.append({"metric": m, "reason": "the real logs give no count of satellites "

@@ -30,6 +30,13 @@ EFFECT_NAMES = (
     "nav_filter", "sbas", "constellations",
 )  # fmt: skip
 
+# The effects that act on which satellites stand where (blocked, masked, weakened or reflected by
+# direction and elevation): fitted to a sky that is not the log's (causes.sky), they would explain
+# that sky's differences, not the receiver's. (dop_error acts through DOP alone, which a plausible
+# sky of another date gives alike, and stays.)
+SKY_PLACED = ("nlos", "multipath", "foliage", "sky_mask", "cn0_tracking", "elevation_mask",
+              "constellations")
+
 
 @dataclass(frozen=True)
 class Axis:
@@ -230,6 +237,7 @@ def candidates(
     systems_seen: str = "",
     systems_held: str = "G",
     starts: bool = True,
+    sky_wrong: str | None = None,
 ) -> tuple[list[Candidate], dict[str, str]]:
     """The effects a profile lacks (or has switched off) that can be tried on it. A profile
     that powers on with a hot start (or none) lacks a slow start: ``cold_start`` is tried on
@@ -245,6 +253,8 @@ def candidates(
     systems_seen : RINEX letters of the systems the real logs list (``constellations``)
     systems_held : RINEX letters of the systems the ephemeris holds satellites of
     starts : some run's log starts at power-on (without it ``cold_start`` changes nothing)
+    sky_wrong : why the simulated sky is not the logs' (``causes.sky``), or None: the effects
+        that act on where satellites stand (:data:`SKY_PLACED`) are then not tried
     names : restrict to these effects (``--effects``; empty: none); None: every one
 
     Returns
@@ -265,6 +275,9 @@ def candidates(
         if name not in ("noise_level", "elevation_mask", "constellations") and _enabled(
                 profile, table) and not (name == "cold_start" and _hot_start(profile)):
             continue  # already in the profile
+        if sky_wrong and name in SKY_PLACED:
+            skipped[name] = sky_wrong
+            continue
         if name == "cold_start" and not starts:
             skipped[name] = ("no run starts at power-on (each log's first epoch has a fix): "
                              "a start-up cannot show")

@@ -246,7 +246,7 @@ def _cause_rows(report: dict) -> list[dict]:
                     + (f" (95 %: {lo:.2f} to {hi:.2f} s)" if math.isfinite(lo) else "")
                     + f". {c['what']}; here {cz.lag_reading(c)}"
                     + (f". Before that, {cz.clock_note(c)}" if cz.clock_note(c) else ""))
-        elif c["name"] == "constellations":
+        elif c["name"] in ("constellations", "sky"):
             what = f"{c['run']}: {c['what']}"
         else:
             what = c.get("what", "") + (
@@ -381,6 +381,9 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
                                                "beyond", "z"]),
         "<h2>Not assessed</h2>",
         _table(report.get("not_assessed", []), ["metric", "reason"]),
+        "<h2>Effects not tried</h2>",
+        _table([{"effect": k, "why": v} for k, v in report.get("candidates_skipped", {}).items()],
+               ["effect", "why"]),
         "<h2>Outer test</h2>",
         _table(outer.get("folds", []), ["heldout", "effects", "params", "gap_before",
                                         "gap_after"]),

@@ -170,7 +170,11 @@ def prepare_runs(
         listed = ep.in_view.any(axis=1) | (ep.sats_in_view >= 0)
         with np.errstate(invalid="ignore"):
             above = el >= mask
-        sat_ok = above & listed[:, None] & setup.valid[:, None]
+        sep_deg = _sky_separation_deg(ep, geom.prn, el, geom.az_deg.astype(float))
+        sat_ok = above & listed[:, None] & setup.valid[:, None] & ~(sep_deg > SKY_SEP_MAX_DEG)
+        sky = _sky_info(geom.prn, sep_deg)
+        if sky["wrong"]:
+            sat_ok[:] = False  # (nor is a satellite the log never lists where the sky has it)
         silent = _silent_prns(real.tracked[0], el, geom.az_deg.astype(float), sat_ok
                               ) if run.has_cn0 else np.zeros(
             geom.prn.size, bool)
@@ -194,6 +198,7 @@ def prepare_runs(
             "time_offset_s": run.time_offset_s, "offset": dict(run.offset_info),
             "simulated_in": "scene" if setup.scene_path else "open sky",
             "silent_prns": [int(p) for p in geom.prn[silent]],
+            "sky": sky,
         }))
     return out
 
@@ -235,6 +240,50 @@ def _silent_prns(real_tracked: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarra
                 for e, a in zip(el[ep, j], np.nan_to_num(az_deg[ep, j]), strict=True)}
         out[j] = len(bins) >= SILENT_MIN_BINS
     return out
+
+
+# A satellite whose GSV elevation and azimuth lie this far from where the ephemeris puts it
+# (median over the run) is not the satellite the simulation has under that number: GSV prints
+# whole degrees (0.4 deg of rounding on average), SGP4 within 60 days of its TLE epoch stays at
+# that floor against a real receiver's GSV (ephemeris.sidereal_shift_s), and a phone's own
+# constant offset is 1.8 deg (the Magdeburg logs, ../shared/data/SOURCES.md); a sky shifted to
+# the same sidereal time three years away is 9 deg off on average, a satellite being relocated
+# degrees per day. Such a satellite is left out of the tracking comparisons, where its real
+# tracking would be compared with another sky position's simulated one.
+SKY_SEP_MAX_DEG = 5.0
+
+
+def _sky_separation_deg(epochs, prn: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray
+                        ) -> np.ndarray:
+    """(k,) the median angle, degrees, between where the log's GSV puts each simulated PRN and
+    where the ephemeris does, over the epochs the log gives its elevation and azimuth (NaN:
+    never). epochs : the log's; prn : (k,); el_deg, az_deg : (n, k) simulated, degrees."""
+    col = {int(p): c for c, p in enumerate(epochs.prn)}
+    out = np.full(prn.size, np.nan)
+    for j, p in enumerate(prn):
+        c = col.get(int(p))
+        if c is None:
+            continue
+        ok = (np.isfinite(epochs.el_deg[:, c]) & np.isfinite(epochs.az_deg[:, c])
+              & np.isfinite(el_deg[:, j]) & np.isfinite(az_deg[:, j]))
+        if ok.any():
+            real = geodesy.azel_to_enu_unit(epochs.az_deg[ok, c], epochs.el_deg[ok, c])
+            sim = geodesy.azel_to_enu_unit(az_deg[ok, j], el_deg[ok, j])
+            cos = np.clip(np.sum(real * sim, axis=-1), -1.0, 1.0)
+            out[j] = float(np.median(np.degrees(np.arccos(cos))))
+    return out
+
+
+def _sky_info(prn: np.ndarray, sep_deg: np.ndarray) -> dict:
+    """How the log's sky matches the simulated one: PRNs compared, their median separation
+    (degrees), those beyond SKY_SEP_MAX_DEG ("misplaced"), and whether they are most of them
+    (``wrong``: the simulated sky is not the log's, and none of its satellites is compared)."""
+    seen = np.isfinite(sep_deg)
+    off = seen & (sep_deg > SKY_SEP_MAX_DEG)
+    return {"prns_compared": int(seen.sum()),
+            "median_sep_deg": round(float(np.median(sep_deg[seen])), 2) if seen.any() else None,
+            "misplaced_prns": [int(p) for p in prn[off]], "max_sep_deg": SKY_SEP_MAX_DEG,
+            "wrong": bool(2 * off.sum() > seen.sum())}
 
 
 def snap_epochs(t_unix_s: np.ndarray) -> np.ndarray:

@@ -246,6 +246,7 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
         extra = cz.constellations(ri.name, ep.prn, ep.in_view, ep.used, simulated)
         if extra is not None:
             causes.append(extra)
+    causes += [c for r in runs if (c := cz.sky(r)) is not None]
     georef = cz.georeference(runs, profile.georef)
     keys = share_runs(runs)
     # (forked before the located gaps' thread starts: see start_workers)
@@ -280,7 +281,8 @@ def _diagnose(inp: GapInputs, opts: dg.Options, progress: Callable[[str], None] 
     if design.claims:
         choice = dg.choose_effects(sim, base, opts, has_mesh, has_gsv, progress=say,
                                    systems=(logged, "".join(sorted(held))),
-                                   starts=any(r.view.started for r in runs))
+                                   starts=any(r.view.started for r in runs),
+                                   sky_wrong=cz.sky_wrong(causes))
     final_table = choice.full.final_table if choice is not None else base
     changed = final_table != table
     final_sims = None
@@ -639,8 +641,11 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
             lines.append(f"  note: {c['what']}; the log fits it no worse than the exact "
                          f"conversion (held-out gap {c['gap_flat_earth']:.3f} with it, "
                          f"{c['gap_exact']:.3f} exact): not a cause here")
-        elif c["name"] == "constellations":
+        elif c["name"] in ("constellations", "sky"):
             lines.append(f"  cause: {c['run']}: {c['what']}")
+    why = cz.sky_wrong(report.get("causes", []))
+    if off_sky := [n for n, w in report.get("candidates_skipped", {}).items() if w == why]:
+        lines.append(f"  note: not tried on a sky that is not the log's: {', '.join(off_sky)}")
     for g in report["located"][:top]:
         w = g["worst"]
         lines.append(f"  gap: {g['metric']} [{w['segment']}"
