@@ -897,6 +897,35 @@ def test_a_sky_that_is_not_the_logs_is_named_and_no_effect_is_fitted_to_it(share
     assert rp._cause_rows(report)[0] == {"cause": "sky", "what": f"hour_test_1: {cause['what']}"}
 
 
+def test_a_truth_in_another_place_is_one_clear_error(shared_data, tmp_path):
+    """A truth with its longitude's sign left off lies 9,000 km from the MT3339 hour's fixes:
+    one error naming the log, the distance and what to check, before anything is simulated
+    (before, the truth was "moved by 6,389 km" and judged). The limit on its own: 40 km from
+    the fixes is a truth offset to measure, 60 km is another place."""
+    from types import SimpleNamespace
+
+    from virtualgps.exceptions import InputFileError
+
+    r = subprocess.run([sys.executable, "-m", "virtualgps", "gap", "--real",
+                        str(shared_data / "mt3339-static" / "hour_test_1.txt"), "--truth",
+                        "static:44.98,93.24,250", "--out", str(tmp_path / "gap")],
+                       capture_output=True, text=True, timeout=300)
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert r.returncode == 2 and len(errors) == 1, r.stderr
+    assert "hour_test_1.txt: its fixes lie a median 9,0" in errors[0]
+    assert "km from its truth" in errors[0] and "south and west negative" in errors[0]
+    assert not (tmp_path / "gap" / "report.json").exists()
+
+    n = 20
+    ep = SimpleNamespace(quality=np.ones(n, int), lat_deg=np.full(n, 45.0),
+                         lon_deg=np.full(n, -93.0))
+    run = SimpleNamespace(epochs=ep, path=Path("log.nmea"))
+    north = [d / 111_132.0 for d in (40_000.0, 60_000.0)]  # (metres per degree of latitude)
+    runs._check_near(run, np.full(n, 45.0 + north[0]), np.full(n, -93.0), np.ones(n, bool))
+    with pytest.raises(InputFileError, match="a median 60 km"):
+        runs._check_near(run, np.full(n, 45.0 + north[1]), np.full(n, -93.0), np.ones(n, bool))
+
+
 def _latency_trial(tmp_path: Path):
     """The self-check's first latency trial in the bundled scene (a 15-minute synthetic log
     with its truth, TLE set and profile)."""

@@ -131,6 +131,7 @@ def prepare_runs(
             raise InputFileError(run.path, "no epoch of this log matches its truth in time "
                                  f"(log {_utc_span(t)}, truth {_utc_span(truth_t)}); check the "
                                  "truth file, its time zone and its clock")
+        _check_near(run, lat, lon, valid)
         where_scene = scene_path
         if georef is not None:
             enu = geodesy.ecef_to_enu(
@@ -201,6 +202,36 @@ def prepare_runs(
             "sky": sky,
         }))
     return out
+
+
+# A log whose fixes lie this far from its truth (median) is of another place: no receiver's
+# error, truth offset (a lever arm, a datum) or flat-earth conversion comes near (tens of metres
+# at 25 km from a scene origin), while a sign left off a longitude or a latitude, degrees and
+# minutes read as degrees, or a scene frame without its georeference all move it by more, and
+# the sky above the truth is then another sky (one degree of elevation per 111 km).
+TRUTH_FAR_M = 50_000.0
+
+
+def _check_near(run: Any, lat_deg: np.ndarray, lon_deg: np.ndarray, valid: np.ndarray) -> None:
+    """Raise an input error naming the log when its fixes lie a median TRUTH_FAR_M or more
+    from its truth ``lat_deg``, ``lon_deg`` (n,) at the ``valid`` (n,) epochs."""
+    from virtualgps.exceptions import InputFileError
+
+    ep = run.epochs
+    ok = valid & (ep.quality > 0) & np.isfinite(ep.lat_deg) & np.isfinite(ep.lon_deg)
+    if not ok.any():
+        return
+    fix = geodesy.geodetic_to_ecef(ep.lat_deg[ok], ep.lon_deg[ok], 0.0)
+    truth = geodesy.geodetic_to_ecef(lat_deg[ok], lon_deg[ok], 0.0)
+    far_m = float(np.median(np.linalg.norm(fix - truth, axis=-1)))
+    if far_m >= TRUTH_FAR_M:
+        k = np.flatnonzero(ok)[0]
+        raise InputFileError(
+            run.path, f"its fixes lie a median {far_m / 1000.0:,.0f} km from its truth (fix "
+            f"{ep.lat_deg[k]:.5f}, {ep.lon_deg[k]:.5f} against truth {lat_deg[k]:.5f}, "
+            f"{lon_deg[k]:.5f}): not the same place; check the truth's signs (south and west "
+            "negative), its units (degrees, not degrees and minutes) and, for scene "
+            "coordinates, the scene's georeference")
 
 
 def _utc_span(t_unix_s: np.ndarray) -> str:
