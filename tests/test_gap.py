@@ -849,9 +849,16 @@ def test_the_separation_of_a_logs_satellites_from_the_simulated_sky():
     assert np.isnan(sep[1]) and np.isnan(sep[4])
     assert sep[2] == pytest.approx(law_of_cosines(30, 0, 30, 90))  # 75.5 deg
     assert sep[3] == pytest.approx(law_of_cosines(45, 200, 45, 201))  # 0.71 deg
-    info = runs._sky_info(prn, sep)
-    assert info["prns_compared"] == 3 and info["misplaced_prns"] == [3, 7] and info["wrong"]
-    assert not runs._sky_info(prn, np.array([1.0, np.nan, 9.0, 0.5, 2.0]))["wrong"]
+    info, cols = runs._sky_info(prn, sep)
+    assert info["prns_compared"] == 3 and info["misplaced_prns"] == [3, 7]
+    assert info["wrong"] == ["GPS"] and cols.all()
+    info, cols = runs._sky_info(prn, np.array([1.0, np.nan, 9.0, 0.5, 2.0]))
+    assert info["wrong"] == [] and not cols.any()
+    # judged per system: GLONASS (65-96) numbered off does not make the GPS sky wrong
+    both = np.array([3, 7, 9, 65, 66, 70])
+    info, cols = runs._sky_info(both, np.array([0.5, 0.4, 6.0, 40.0, 35.0, 1.0]))
+    assert info["wrong"] == ["GLONASS"] and info["misplaced_prns"] == [9, 65, 66]
+    assert cols.tolist() == [False, False, False, True, True, True]
 
 
 def test_a_sky_that_is_not_the_logs_is_named_and_no_effect_is_fitted_to_it(shared_data):
@@ -872,7 +879,7 @@ def test_a_sky_that_is_not_the_logs_is_named_and_no_effect_is_fitted_to_it(share
     wrong, table, _ = _prepared_hour(shared_data,
                                      str(BUNDLED_EPHEMERIS_DIR / "gps-ops-2020-05-14T22Z.tle"))
     cause = cz.sky(wrong[0])
-    assert cause is not None and cause["most"], wrong[0].info["sky"]
+    assert cause is not None and cause["systems_wrong"] == ["GPS"], wrong[0].info["sky"]
     assert 2 * len(cause["misplaced_prns"]) > cause["prns_compared"]
     assert "not the log's" in cause["what"] and not wrong[0].view.sat_ok.any()
     reasons = {n["metric"]: n["reason"] for n in dg.not_assessed(wrong)}

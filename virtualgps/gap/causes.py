@@ -394,24 +394,25 @@ def constellations(name: str, prn: np.ndarray, in_view: np.ndarray, used: np.nda
 def sky(run: Run) -> dict | None:
     """The satellites a run's log puts elsewhere than the ephemeris does (None: none, or no GSV
     angles; :func:`virtualgps.gap.runs.prepare_runs` leaves them out of the comparisons). Most
-    of them: the simulated sky is not the log's and no tracking is compared; a few: those
-    satellites are not (relocated or renumbered since the TLE set)."""
+    of a system's: that system's simulated sky is not the log's and none of its satellites'
+    tracking is compared; a few: those satellites are not (relocated or renumbered since the
+    TLE set)."""
     info = run.info.get("sky") or {}
     off = info.get("misplaced_prns") or []
     if not off:
         return None
-    n, most = info["prns_compared"], info["wrong"]
+    n, wrong = info["prns_compared"], info["wrong"]
     head = (f"the log's satellites stand a median {info['median_sep_deg']:g} deg from where "
             f"the ephemeris puts them ({len(off)} of {n} more than {info['max_sep_deg']:g} deg "
-            "off): the simulated sky is not the log's (an ephemeris of another time, a truth "
-            "on another date or in another place); no satellite's tracking is compared: "
-            "--tle with a set of the log's day (or its RINEX navigation file) would compare "
-            "them" if most else
+            f"off): the simulated {' and '.join(wrong)} sky is not the log's (an ephemeris of "
+            "another time, a truth on another date or in another place, a system's numbering); "
+            "none of its satellites' tracking is compared: --tle with a set of the log's day "
+            "(or its RINEX navigation file) would compare them" if wrong else
             f"PRN {', '.join(str(p) for p in off)} stand more than {info['max_sep_deg']:g} deg "
             "from where the ephemeris puts them (relocated or renumbered since the TLE set): "
             "left out of the tracking comparisons")
-    return {"name": "sky", "kind": "ephemeris", "run": run.view.name, "most": most,
-            "misplaced_prns": off, "prns_compared": n,
+    return {"name": "sky", "kind": "ephemeris", "run": run.view.name, "most": bool(wrong),
+            "systems_wrong": wrong, "misplaced_prns": off, "prns_compared": n,
             "median_sep_deg": info["median_sep_deg"], "what": head}
 
 

@@ -173,9 +173,8 @@ def prepare_runs(
             above = el >= mask
         sep_deg = _sky_separation_deg(ep, geom.prn, el, geom.az_deg.astype(float))
         sat_ok = above & listed[:, None] & setup.valid[:, None] & ~(sep_deg > SKY_SEP_MAX_DEG)
-        sky = _sky_info(geom.prn, sep_deg)
-        if sky["wrong"]:
-            sat_ok[:] = False  # (nor is a satellite the log never lists where the sky has it)
+        sky, in_wrong = _sky_info(geom.prn, sep_deg)
+        sat_ok[:, in_wrong] = False  # (nor a satellite the log never lists, in a wrong sky)
         silent = _silent_prns(real.tracked[0], el, geom.az_deg.astype(float), sat_ok
                               ) if run.has_cn0 else np.zeros(
             geom.prn.size, bool)
@@ -305,16 +304,21 @@ def _sky_separation_deg(epochs, prn: np.ndarray, el_deg: np.ndarray, az_deg: np.
     return out
 
 
-def _sky_info(prn: np.ndarray, sep_deg: np.ndarray) -> dict:
+def _sky_info(prn: np.ndarray, sep_deg: np.ndarray) -> tuple[dict, np.ndarray]:
     """How the log's sky matches the simulated one: PRNs compared, their median separation
-    (degrees), those beyond SKY_SEP_MAX_DEG ("misplaced"), and whether they are most of them
-    (``wrong``: the simulated sky is not the log's, and none of its satellites is compared)."""
+    (degrees), those beyond SKY_SEP_MAX_DEG ("misplaced"), and the systems most of whose
+    compared PRNs are (``wrong``: that system's simulated sky is not the log's, and none of its
+    satellites is compared; per system, as a system's numbering, GLONASS slots, may be what
+    is off), and a (k,) bool mask of the wrong systems' satellites. prn, sep_deg : (k,)."""
     seen = np.isfinite(sep_deg)
     off = seen & (sep_deg > SKY_SEP_MAX_DEG)
+    letters = systems.letters(prn)
+    wrong = [x for x in dict.fromkeys(letters[seen].tolist())
+             if x != "?" and 2 * off[letters == x].sum() > seen[letters == x].sum()]
     return {"prns_compared": int(seen.sum()),
             "median_sep_deg": round(float(np.median(sep_deg[seen])), 2) if seen.any() else None,
             "misplaced_prns": [int(p) for p in prn[off]], "max_sep_deg": SKY_SEP_MAX_DEG,
-            "wrong": bool(2 * off.sum() > seen.sum())}
+            "wrong": [systems.system_named(x).name for x in wrong]}, np.isin(letters, wrong)
 
 
 def snap_epochs(t_unix_s: np.ndarray) -> np.ndarray:
