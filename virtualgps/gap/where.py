@@ -149,10 +149,14 @@ def _rowmean(x: np.ndarray) -> np.ndarray:
 
 
 def autocorr_time_s(t: np.ndarray, err_h: np.ndarray) -> float:
-    """1/e time of a (m, 2) east/north error series (m epochs at times t), NaN if too short."""
+    """1/e time of a (m, 2) east/north error series (m epochs at times t), NaN if too short;
+    0 for an error that never changes (fixes that are their truth, or a constant offset from
+    it): no error carries over from one block to the next."""
     ok = np.isfinite(err_h).all(axis=1)
     if ok.sum() < MIN_AUTOCORR_EPOCHS:
         return float("nan")
+    if np.ptp(err_h[ok], axis=0).max() == 0.0:
+        return 0.0
     steps = np.diff(t[ok])
     dt = float(np.median(steps))
     _, grid = to_regular_grid(t[ok], err_h[ok], dt)
