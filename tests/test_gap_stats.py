@@ -205,12 +205,14 @@ def test_a_candidate_gains_nothing_by_widening_its_spread_away_from_the_real_val
 
 
 def test_a_metric_missed_beyond_the_cap_cannot_be_moved_further_for_nothing():
-    """A metric the profile under test misses far beyond the cap: a candidate that takes its
-    centre a few spreads further from the real value exceeds the cap by that move in the
-    reference's spreads, less the centres' noise, past the cap's reach (closed form, Student's
-    t from scipy.stats), at most D_CAP more; one at the reference's centre, or nearer the log,
-    stays at or under the cap. The vector twin agrees. The GSDC SPAN reference as the real
-    log: 11.4 satellites used, 8 in every seed (no spread): a move is counted in floors."""
+    """A metric the profile under test misses far beyond the cap: for what a candidate
+    worsens (``beyond``), one that takes its centre a few spreads further from the real value
+    exceeds the cap by that move in the reference's spreads, less the centres' noise, past the
+    cap's reach (closed form, Student's t from scipy.stats), at most D_CAP more; one at the
+    reference's centre, or nearer the log, stays at or under the cap. The score's distance
+    (and its vector twin) stays capped, and a unit's gap takes each part at most D_CAP. The
+    GSDC SPAN reference as the real log: 11.4 satellites used, 8 in every seed (no spread): a
+    move is counted in floors."""
     from scipy import special, stats
 
     rng = np.random.default_rng(21)
@@ -226,10 +228,11 @@ def test_a_metric_missed_beyond_the_cap_cannot_be_moved_further_for_nothing():
     for name, k in (("further", 4.0), ("same", 0.0), ("nearer", -3.0), ("far", 100.0)):
         own = bands.judge("cep50_m", real, np.exp(g("cep50_m", ref.centre) - k * sd
                                                   + rng.normal(0, sd, 12)) - 0.5)
-        d = bands.distance_against("cep50_m", real, own, ref)
-        want = bands.distances_many("cep50_m", np.array([real]), [own], [np.zeros(12)],
-                                    ref)[0, 0]
-        assert d == pytest.approx(want)
+        d = bands.distance_against("cep50_m", real, own, ref, beyond=True)
+        capped = bands.distance_against("cep50_m", real, own, ref)
+        assert capped == min(d, bands.D_CAP)
+        assert capped == pytest.approx(bands.distances_many(
+            "cep50_m", np.array([real]), [own], [np.zeros(12)], ref)[0, 0])
         out[name] = d
         if name == "further":
             spread = ref.sd_g * math.sqrt(1 + 1 / ref.n)
@@ -245,6 +248,8 @@ def test_a_metric_missed_beyond_the_cap_cannot_be_moved_further_for_nothing():
     assert out["further"] > bands.D_CAP + 1.0  # (select.WORSEN_MAX: the step that rejects it)
     assert out["same"] == bands.D_CAP and out["nearer"] <= bands.D_CAP
     assert out["far"] == 2 * bands.D_CAP
+    gap, parts = where.gap_score({"cep50_m": (real, own)}, {"cep50_m": (real, ref)})
+    assert parts["cep50_m"] == 2 * bands.D_CAP and gap == bands.D_CAP
 
     def sats(x):
         return g("sats_used_mean", x)
@@ -254,10 +259,11 @@ def test_a_metric_missed_beyond_the_cap_cannot_be_moved_further_for_nothing():
     own0 = bands.judge("sats_used_mean", real, np.full(8, 7.0))
     assert ref0.sd_g == 0 and bands.distance_against("sats_used_mean", real, ref0, ref0) == 5
     floor = float(sats(8.5) - sats(8.0))  # (0.5 satellites)
-    assert bands.distance_against("sats_used_mean", real, own0, ref0) == pytest.approx(
+    assert bands.distance_against("sats_used_mean", real, own0, ref0,
+                                  beyond=True) == pytest.approx(
         bands.D_CAP + float(sats(8.0) - sats(7.0)) / floor)
     assert bands.distance_against("sats_used_mean", real, bands.judge(
-        "sats_used_mean", real, np.full(8, 4.0)), ref0) == 2 * bands.D_CAP
+        "sats_used_mean", real, np.full(8, 4.0)), ref0, beyond=True) == 2 * bands.D_CAP
 
 
 def test_a_guarded_distance_keeps_the_candidates_own_spread_when_its_centre_comes_closer():

@@ -38,7 +38,8 @@ score by moving a metric within the seeds' own scatter. Nor by widening that sca
 candidate moves a metric's centre away from the real value, its distance is at least the one
 that centre has in the spread of the profile under test (:func:`distance_against`). Nor by
 moving further away a metric the profile under test already misses by more than the cap: the
-further move, in that profile's spreads, is added beyond the cap (at most D_CAP more).
+per-metric distances that judge what a candidate worsens carry the further move, in that
+profile's spreads, beyond the cap (at most D_CAP more).
 """
 
 from __future__ import annotations
@@ -55,8 +56,8 @@ from scipy import special
 FDR_Q = 0.05  # false-discovery rate of a report's located gaps
 Z_CAP = 8.0  # a p-value of ~1e-15: beyond it nothing is more certain
 DEAD_ZONE_Z = 1.0  # score distance: z beyond one predictive standard deviation
-D_CAP = 5.0  # one metric's distance at most (a metric shown by the real log, by no seed),
-# but for a centre moved further than the profile under test's already beyond it (twice that)
+D_CAP = 5.0  # one metric's distance at most (a metric shown by the real log, by no seed);
+# what a candidate worsens sees up to twice that (a centre moved further than the reference's)
 MIN_SEEDS = 3  # seeds with a value a statistic needs before it is judged
 GUARD_P = 0.001  # a centre that moves away by less than its noise at this level has not moved
 
@@ -349,8 +350,6 @@ def _distances_finite(metric: str, r: np.ndarray, judged: Sequence[Judged],
             in_ref = _predictive_distances(spec, r, centre, np.full_like(sd, ref.sd_g),
                                            np.full_like(n, ref.n))
             d = np.where(away, np.maximum(d, in_ref), d)
-            d = np.where(away & (d >= D_CAP),
-                         d + _beyond_cap(spec, miss_own, miss_ref, tol, ref), d)
     out[normal] = d
     return out
 
@@ -407,7 +406,8 @@ def holdout_p(metric: str, sims: Sequence[float] | np.ndarray) -> np.ndarray:
     return out
 
 
-def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) -> float:
+def distance_against(metric: str, real: float, own: Judged, ref: Judged | None,
+                     beyond: bool = False) -> float:
     """One metric's score distance for a candidate, guarded by the profile under test.
 
     In its own seeds' spread (:func:`distance` of ``own.z``), unless the candidate's centre
@@ -422,6 +422,11 @@ def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) 
 
     own, ref : :func:`judge` of the real value against the candidate's and the reference's
         seeds (ref None, or either rank-judged: the own distance)
+    beyond : where the reference's own distance is at D_CAP too, add how much further the
+        candidate's centre lies than the reference's (:func:`_beyond_cap`): what a metric the
+        profile under test already misses beyond the cap is made worse by (the per-metric
+        distances that judge what a candidate worsens; the score itself stays capped). Below
+        the cap the reference's distance already counts a move up to it.
     """
     d_own = distance(own.z)
     if (ref is None or own.rank or ref.rank or not math.isfinite(d_own)
@@ -439,19 +444,23 @@ def distance_against(metric: str, real: float, own: Judged, ref: Judged | None) 
         return d_own
     _, z, _ = _predictive(spec, real, own.centre, ref.sd_g, ref.n)
     d = max(d_own, distance(z))
-    return d + float(_beyond_cap(spec, miss_own, miss_ref, tol, ref)) if d >= D_CAP else d
+    if beyond and d >= D_CAP and distance(ref.z) >= D_CAP:
+        d += float(_beyond_cap(spec, miss_own, miss_ref, tol, ref))
+    return d
 
 
 def _beyond_cap(spec: MetricSpec, miss_own, miss_ref, tol, ref: Judged):
-    """What a guarded distance adds at D_CAP (float or array): how much further the candidate's
-    centre lies than both the reference's and the cap's reach, in the reference's predictive
-    spreads (or its floors, where wider: seeds that all agree have no spread), less the two
-    centres' noise ``tol``, at most D_CAP more. Without it a metric the profile under test
-    already misses by more than the cap could be moved further away for nothing while another
+    """What a guarded distance adds at D_CAP when asked (``beyond``): how much further the
+    candidate's centre lies than both the reference's and the cap's reach, in the reference's
+    predictive spreads (or its floors, where wider: seeds that all agree have no spread), less
+    the two centres' noise ``tol``, at most D_CAP more. Without it a metric the profile under
+    test already misses by more than the cap could be moved further away unseen while another
     metric gained (the GSDC SPAN reference as the real log: 11.4 satellites used against 8 in
     every seed; an elevation mask of 20 deg took the simulation to fewer still, its HDOP nearer
-    the log's, and was added). miss_own, miss_ref : distances of the centres from the real
-    value on the judging scale; ref : the reference's judgment (centre, spread, seeds)."""
+    the log's, and was added). It judges what a candidate worsens, not the score: added to the
+    score, it made a fit's surface jump by up to D_CAP between neighbouring grid points (the
+    Magdeburg waypoints' cn0_tracking). miss_own, miss_ref : distances of the centres from the
+    real value on the judging scale; ref : the reference's judgment."""
     floor = max(spec.floor, spec.rel_floor * abs(ref.centre))
     floor_g = _g1(spec, ref.centre + floor) - _g1(spec, ref.centre)
     spread = ref.sd_g * math.sqrt(1.0 + 1.0 / max(ref.n, 1))

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from virtualgps.gap.bands import (
+    D_CAP,
     METRICS,
     SCORE_METRICS,
     Judged,
@@ -586,15 +587,19 @@ def gap_score(judged: dict[str, tuple[float, Judged]],
     Returns
     -------
     gap : float (NaN when no score metric is assessed)
-    parts : {metric: distance}
+    parts : {metric: distance}, a metric the reference already misses beyond D_CAP with what
+        the candidate moves it further beyond (``distance_against(..., beyond=True)``: what it
+        worsens); the gap takes each at most D_CAP
     """
     parts = {}
+    total = 0.0
     for m, (real, j) in judged.items():
         r = ref.get(m) if ref is not None else None
-        d = distance_against(m, real, j, r[1] if r is not None else None)
+        d = distance_against(m, real, j, r[1] if r is not None else None, beyond=True)
         if math.isfinite(d):
             parts[m] = d
-    return (sum(parts.values()) / len(parts) if parts else float("nan")), parts
+            total += min(d, D_CAP)
+    return (total / len(parts) if parts else float("nan")), parts
 
 
 def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
