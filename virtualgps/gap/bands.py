@@ -60,6 +60,7 @@ D_CAP = 5.0  # one metric's distance at most (a metric shown by the real log, by
 # what a candidate worsens sees up to twice that (a centre moved further than the reference's)
 MIN_SEEDS = 3  # seeds with a value a statistic needs before it is judged
 GUARD_P = 0.001  # a centre that moves away by less than its noise at this level has not moved
+_CAP_TAIL = float(special.ndtr(-(D_CAP + DEAD_ZONE_Z)))  # one-sided tail of the cap's z
 
 
 @dataclass(frozen=True)
@@ -445,11 +446,12 @@ def distance_against(metric: str, real: float, own: Judged, ref: Judged | None,
     _, z, _ = _predictive(spec, real, own.centre, ref.sd_g, ref.n)
     d = max(d_own, distance(z))
     if beyond and d >= D_CAP and distance(ref.z) >= D_CAP:
-        d += float(_beyond_cap(spec, miss_own, miss_ref, tol, ref))
+        d += _beyond_cap(spec, miss_own, miss_ref, tol, ref)
     return d
 
 
-def _beyond_cap(spec: MetricSpec, miss_own, miss_ref, tol, ref: Judged):
+def _beyond_cap(spec: MetricSpec, miss_own: float, miss_ref: float, tol: float, ref: Judged
+                ) -> float:
     """What a guarded distance adds at D_CAP when asked (``beyond``): how much further the
     candidate's centre lies than both the reference's and the cap's reach, in the reference's
     predictive spreads (or its floors, where wider: seeds that all agree have no spread), less
@@ -463,16 +465,15 @@ def _beyond_cap(spec: MetricSpec, miss_own, miss_ref, tol, ref: Judged):
     real value on the judging scale; ref : the reference's judgment."""
     floor = max(spec.floor, spec.rel_floor * abs(ref.centre))
     floor_g = _g1(spec, ref.centre + floor) - _g1(spec, ref.centre)
-    spread = ref.sd_g * math.sqrt(1.0 + 1.0 / max(ref.n, 1))
+    spread = ref.sd_g * math.sqrt(1.0 + 1.0 / ref.n)
     scale = max(spread, floor_g)
     if not scale > 0.0 or ref.n < 2:
-        return 0.0 * miss_own
+        return 0.0
     # (the cap's reach: the floor, then as many predictive spreads as Student's t with the
     # reference's seeds needs for the p-value whose z is D_CAP + DEAD_ZONE_Z, 17.7 at 12
     # seeds, 38.8 at 8; so the distance grows on from the cap without a step)
-    cap_t = _t_quantile(ref.n - 1, 1.0 - float(special.ndtr(-(D_CAP + DEAD_ZONE_Z))))
-    reach = np.maximum(miss_ref, floor_g + cap_t * spread)
-    return np.clip((miss_own - tol - reach) / scale, 0.0, D_CAP)
+    reach = max(miss_ref, floor_g + _t_quantile(ref.n - 1, 1.0 - _CAP_TAIL) * spread)
+    return min(D_CAP, max(0.0, (miss_own - tol - reach) / scale))
 
 
 def band_description(n_rows: int, seeds: int, alpha_row: float, holdout: dict) -> dict:

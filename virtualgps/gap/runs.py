@@ -35,19 +35,24 @@ class Run:
     info: dict = field(default_factory=dict)
 
 
-def _real_obs(epochs, prn: np.ndarray) -> Obs:
-    """The real log's epochs as an :class:`Obs` over the simulator's PRN columns."""
-    n, k = len(epochs), prn.size
-    col = {int(p): j for j, p in enumerate(epochs.prn)}
-    tracked = np.zeros((n, k), bool)
-    cn0 = np.full((n, k), np.nan)
-    used = np.zeros((n, k), bool)
+def _on_sim_columns(log_prn: np.ndarray, x: np.ndarray, prn: np.ndarray, fill: Any
+                    ) -> np.ndarray:
+    """A log's per-satellite array ``x`` (n, k_log), columns ``log_prn``, under the simulator's
+    PRN columns ``prn`` (k,): (n, k), ``fill`` where the log never lists that satellite."""
+    col = {int(p): c for c, p in enumerate(log_prn)}
+    out = np.full((x.shape[0], prn.size), fill, dtype=x.dtype)
     for j, p in enumerate(prn):
         c = col.get(int(p))
         if c is not None:
-            cn0[:, j] = epochs.cn0_dbhz[:, c]
-            tracked[:, j] = np.isfinite(epochs.cn0_dbhz[:, c])
-            used[:, j] = epochs.used[:, c]
+            out[:, j] = x[:, c]
+    return out
+
+
+def _real_obs(epochs, prn: np.ndarray) -> Obs:
+    """The real log's epochs as an :class:`Obs` over the simulator's PRN columns."""
+    cn0 = _on_sim_columns(epochs.prn, epochs.cn0_dbhz, prn, np.nan)
+    tracked = np.isfinite(cn0)
+    used = _on_sim_columns(epochs.prn, epochs.used, prn, False)
     sep = np.where(np.isfinite(epochs.geoid_sep_m), epochs.geoid_sep_m,
                    geodesy.geoid_sep_m(np.nan_to_num(epochs.lat_deg),
                                        np.nan_to_num(epochs.lon_deg)))
@@ -288,19 +293,16 @@ def _sky_separation_deg(epochs, prn: np.ndarray, el_deg: np.ndarray, az_deg: np.
     """(k,) the median angle, degrees, between where the log's GSV puts each simulated PRN and
     where the ephemeris does, over the epochs the log gives its elevation and azimuth (NaN:
     never). epochs : the log's; prn : (k,); el_deg, az_deg : (n, k) simulated, degrees."""
-    col = {int(p): c for c, p in enumerate(epochs.prn)}
+    real_el = _on_sim_columns(epochs.prn, epochs.el_deg, prn, np.nan)
+    real_az = _on_sim_columns(epochs.prn, epochs.az_deg, prn, np.nan)
+    ok = np.isfinite(real_el) & np.isfinite(real_az) & np.isfinite(el_deg) & np.isfinite(az_deg)
+    cos = np.sum(geodesy.azel_to_enu_unit(np.where(ok, real_az, 0.0), np.where(ok, real_el, 0.0))
+                 * geodesy.azel_to_enu_unit(np.where(ok, az_deg, 0.0), np.where(ok, el_deg, 0.0)),
+                 axis=-1)
+    sep = np.where(ok, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), np.nan)
     out = np.full(prn.size, np.nan)
-    for j, p in enumerate(prn):
-        c = col.get(int(p))
-        if c is None:
-            continue
-        ok = (np.isfinite(epochs.el_deg[:, c]) & np.isfinite(epochs.az_deg[:, c])
-              & np.isfinite(el_deg[:, j]) & np.isfinite(az_deg[:, j]))
-        if ok.any():
-            real = geodesy.azel_to_enu_unit(epochs.az_deg[ok, c], epochs.el_deg[ok, c])
-            sim = geodesy.azel_to_enu_unit(az_deg[ok, j], el_deg[ok, j])
-            cos = np.clip(np.sum(real * sim, axis=-1), -1.0, 1.0)
-            out[j] = float(np.median(np.degrees(np.arccos(cos))))
+    seen = ok.any(axis=0)
+    out[seen] = np.nanmedian(sep[:, seen], axis=0)
     return out
 
 
