@@ -532,3 +532,37 @@ def test_a_run_counts_its_duration_from_the_first_epoch_however_long_the_set_up(
     with caplog.at_level("INFO", logger="virtualgps"):
         assert main(args) == 0
     assert "stopped after 5 epochs" in caplog.records[-1].getMessage()
+
+
+def test_a_long_gap_run_logs_where_it_is_when_its_output_is_not_a_terminal(monkeypatch):
+    """`gap` into a log or a pipe (CI, nohup) writes a plain progress line at most every 15 s,
+    and nothing in a run shorter than that, so its one error line or its result stays alone;
+    on a terminal it keeps one line up to date and clears it before the result."""
+    import io
+
+    from virtualgps import cli
+
+    clock = [100.0]
+    monkeypatch.setattr(cli.time, "monotonic", lambda: clock[0])
+    log = io.StringIO()
+    status = cli._GapStatus(log)
+    status("reading")
+    clock[0] += 14.0
+    status("baseline: 50 seeds")
+    assert log.getvalue() == ""
+    clock[0] += 2.0
+    status("choosing effects: 3 selection(s) under way")
+    status("choosing effects: 2 selection(s) under way")
+    status.clear()
+    assert log.getvalue() == "virtualgps: choosing effects: 3 selection(s) under way\n"
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    term = Terminal()
+    status = cli._GapStatus(term)
+    status("x" * 200)
+    status("y")
+    status.clear()
+    assert term.getvalue() == "\r\x1b[K" + "x" * 120 + "\r\x1b[Ky" + "\r\x1b[K"

@@ -543,16 +543,32 @@ def _gap_options(args: argparse.Namespace):
                    jobs=args.jobs, dask=args.dask, blocks=args.blocks)
 
 
-def _status(stream):
-    """A one-line progress display on a terminal (nothing otherwise)."""
-    if not stream.isatty():
-        return None
+class _GapStatus:
+    """Where a long diagnosis or self-check is: on a terminal, one line kept up to date; on
+    anything else (a log file, a pipe, CI) a plain line at most every ``every_s`` seconds, so a
+    30-minute self-check logs where it is without flooding the log, and a run shorter than
+    ``every_s`` writes nothing but its result."""
 
-    def show(text: str) -> None:
-        stream.write("\r\x1b[K" + text[:120])
-        stream.flush()
+    def __init__(self, stream, every_s: float = 15.0) -> None:
+        self.stream, self.every_s = stream, every_s
+        self.tty = stream.isatty()
+        self.last_s = time.monotonic()
 
-    return show
+    def __call__(self, text: str) -> None:
+        if self.tty:
+            self.stream.write("\r\x1b[K" + text[:120])
+        else:
+            now = time.monotonic()
+            if now - self.last_s < self.every_s:
+                return
+            self.last_s = now
+            self.stream.write(f"virtualgps: {text}\n")
+        self.stream.flush()
+
+    def clear(self) -> None:
+        """Ends the display before the result is printed."""
+        if self.tty:
+            self.stream.write("\r\x1b[K")
 
 
 def cmd_gap(args: argparse.Namespace) -> int:
@@ -562,7 +578,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise VirtualGPSError(f"--out {out}: exists and is not a folder")
-    progress = _status(sys.stderr)
+    progress = _GapStatus(sys.stderr)
     if args.selfcheck:
         from virtualgps.gap import selfcheck, synthetic
 
@@ -577,8 +593,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
             raise VirtualGPSError(f"--effects: {exc}") from None
         result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress,
                                labels=labels, data=data if data.is_dir() else None)
-        if progress:
-            sys.stderr.write("\r\x1b[K")
+        progress.clear()
         for line in selfcheck.summary_lines(result):
             print(line)
         print(f"wrote {out / 'selfcheck.json'} and {out / 'report.html'}")
@@ -586,8 +601,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
     inp = tool.GapInputs(real=tuple(args.real), truth=tuple(args.truth), scene=args.scene,
                          tle=tuple(args.tle) if args.tle else None, profile=args.profile)
     report, figures, calibrated = tool.diagnose(inp, opts, progress=progress)
-    if progress:
-        sys.stderr.write("\r\x1b[K")
+    progress.clear()
     try:
         tool.write_outputs(report, figures, calibrated, report["profile"], out, opts.jobs,
                            opts.dask)

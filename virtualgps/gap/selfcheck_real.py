@@ -44,6 +44,7 @@ from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
 
 GSDC = "gsdc-2020-05-14-mtv"
+BASE_LOG = "Pixel4_chipset.nmea"  # (the drive's other phone, Pixel4XLModded_chipset.nmea, too)
 BASE_PROFILE = "holux-m1000"
 REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset", "cold_start",
                 "correlated_error")
@@ -216,13 +217,14 @@ def withheld_profile(effect: str, work: Path) -> str:
 
 def run(data: Path, opts: dg.Options, trials: int, work: Path,
         progress: Callable[[str], None] | None = None,
-        effects: tuple[str, ...] = REAL_EFFECTS) -> tuple[list[dict], str | None]:
-    """The real-log trials of ``effects`` (of :data:`REAL_EFFECTS`): (rows for
-    ``selfcheck.json``, a note when the data are missing)."""
+        effects: tuple[str, ...] = REAL_EFFECTS,
+        base_log: str = BASE_LOG) -> tuple[list[dict], str | None]:
+    """The real-log trials of ``effects`` (of :data:`REAL_EFFECTS`) on the GSDC log
+    ``base_log``: (rows for ``selfcheck.json``, a note when the data are missing)."""
     from virtualgps.gap import synthetic, tool
 
     d = Path(data) / GSDC
-    real, truth = d / "Pixel4_chipset.nmea", d / "SPAN_Pixel4_1Hz.nmea"
+    real, truth = d / base_log, d / "SPAN_Pixel4_1Hz.nmea"
     tle = d / "gps-ops_2020-05-14T22Z.tle"
     if not (real.exists() and truth.exists() and tle.exists()):
         return [], f"real-log bases not run: {d} not found"
