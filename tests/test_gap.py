@@ -585,6 +585,7 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
         t["seed_holdout"]["reports_with_any_row_outside"] for t in res["trials"])
     assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair
     assert res["confusion"]["nothing@holux-m1000"] == {"nothing": 1}
+    assert "  nothing@holux-m1000: right 1/1" in selfcheck.summary_lines(res)
 
 
 def test_a_null_trial_takes_any_profile():
@@ -1054,6 +1055,13 @@ def test_real_log_bases_tell_a_delay_from_a_filter_and_find_a_wrong_truth(shared
     assert off["success"] and "truth_offset" in off["causes"], off
     result = selfcheck.summarise(rows, dg.Options(seeds=12))
     assert result["confusion"]["real:gsdc:latency"] == {"latency": 1}
+    # the terminal's summary names only what was ranked first and not injected
+    lines = selfcheck.summary_lines(result)
+    assert "  real:gsdc:latency: right 1/1, parameters covered 1/1" in lines, lines
+    wrong = dict(rows[0], ranked_first="nav_filter", success=False)
+    assert selfcheck.summary_lines(selfcheck.summarise([wrong], dg.Options(seeds=12)))[-1] \
+        == "  real:gsdc:latency: right 0/1, parameters covered 1/1 (ranked first instead: " \
+        "nav_filter 1)"
 
 
 def _prepared_hour(shared_data: Path, tle: str | None = None) -> tuple[list, dict, str]:

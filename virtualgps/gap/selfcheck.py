@@ -205,8 +205,12 @@ def summary_lines(result: dict) -> list[str]:
                      f"{held['reports']} reports with a located gap "
                      f"({held['rows_outside']}/{held['rows']} rows)")
     for label, s in result["summary"].items():
-        others = {k: v for k, v in result["confusion"][label].items()
-                  if k != (label if s["kind"] != "null" else NOTHING)}
+        # (what was ranked first that the trials did not inject: a real base's label is not an
+        # effect's name, and either effect of a pair may come first)
+        injected = {e for r in result["trials"] if r["injected"] == label
+                    for e in r["effects"]} or {NOTHING}
+        others = ", ".join(f"{k} {v}" for k, v in result["confusion"][label].items()
+                           if k not in injected)
         lines.append(f"  {label}: right {s['success']}/{s['trials']}"
                      + (f", parameters covered {s['parameters_covered']}"
                         if s["parameters_covered"] else "")
