@@ -18,4 +18,5 @@ if command -v apt-get >/dev/null 2>&1; then
 fi
 python3 -m pip install -q -e '.[test]'
 python3 -m ruff check virtualgps tests tools
-python3 -m pytest -q "$@"
+# (the ten slowest tests listed at the end: CI must finish in 30 minutes, docs/development.md)
+python3 -m pytest -q --durations=10 "$@"
