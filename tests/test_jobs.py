@@ -268,7 +268,9 @@ def test_the_model_plays_a_thread_beside_the_main_process():
     thread = jobs.ModelThread()
     try:
         first = thread.submit(_nap, 0.2)  # ready at 0.2 s
-        second = thread.submit(_nap, 0.1)  # queued behind it: ready at 0.3 s
+        # queued behind it: ready at 0.3 s (keywords pass as to a ThreadPoolExecutor: the gap
+        # tool hands the final where-table over with one)
+        second = thread.submit(_nap, s=0.1)
         time.sleep(0.05)  # the main process's own work meanwhile
         assert first.result() == 0.2
         assert jobs.model_times_s()[0] == pytest.approx(0.2, abs=0.03)

@@ -464,15 +464,15 @@ class ModelThread:
     one while the workers run), used in place of a one-thread executor while :func:`model`
     models workers: a thread beside jobs run in this process would share their time."""
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> _AsideDone:
-        """Run ``fn(*args)`` here, now, off the main process's clock, as if the thread had
+    def submit(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> _AsideDone:
+        """Run ``fn(*args, **kwargs)`` here, now, off the main process's clock, as if the thread had
         started it when it was handed over, or when its previous call ended; its result is
         ready at that start plus its own run time (what a thread that mostly needs a core
         while the main process waits on the workers would take). Returns an object whose
         ``result()`` advances the model's clock to that time (the wait is serial time)."""
         now = _model_clock()
         t0 = time.perf_counter()
-        value = fn(*args)
+        value = fn(*args, **kwargs)
         ready = max(now, _MODEL["aside"]) + time.perf_counter() - t0
         _MODEL["aside"] = ready
         _model_resume()
