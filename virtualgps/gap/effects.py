@@ -426,23 +426,19 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
                                                        p["elevation_mask_deg"]}},
                          ("elevation_mask_deg",), {"elevation_mask_deg": cur})
     if name == "latency":
-        # steps of 0.1-0.15 s below 1 s, 0.25 s to 3 s: a first-order filter of tau lags by
+        # steps of 0.1-0.15 s below 1 s: a first-order filter of tau lags by
         # exp(-dt/tau) / (1 - exp(-dt/tau)) epochs (0.58 s at tau 1 s, 1 Hz), and a latency
-        # between grid points lost to the filter's nearer lag (with 0.5 s steps past 1.5 s, a
-        # 1.73 s delay injected into the GSDC drive came out as 1.5 s plus a 0.5 s filter)
+        # between grid points lost to the filter's nearer lag
         axes = (Axis("latency_s", (0.1, 0.25, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25, 1.5,
-                                   1.75, 2.0, 2.25, 2.5, 2.75, 3.0), 0.0, 30.0),)
+                                   2.0, 2.5, 3.0), 0.0, 30.0),)
         return _table_candidate(name, name, on, axes, profile)
     if name == "nav_filter":
-        # 0.25 s steps where receivers' filters lie, as fine in lag as the latency grid: a
-        # filter of tau lags by the formula above (1.05 s at tau 1.5 s, 1.54 s at 2 s, 1 Hz),
-        # and where no grid point's lag is near a filter's, a pure delay fits it better than the
-        # filter does, and back (with 0.5 s steps a filter of 1.73 s, lag 1.27 s, injected into
-        # the GSDC drive came out as a 1.25 s delay)
+        # 0.5 s steps where receivers' filters lie: with coarser grids a pure delay fits a
+        # filter's lag better than the filter itself does, and back
         # and whether it follows the motion with the receiver's own velocity (smoothing only
         # the error, without lag: a phone's filter) or low-passes the position itself
-        axes = (Axis("tau_s", (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.5,
-                             4.0, 6.0, 8.0, 16.0), 0.0, 120.0),
+        axes = (Axis("tau_s", (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0), 0.0,
+                     120.0),
                 Axis("velocity_aided", (False, True)))
         return _table_candidate(name, name, on, axes, profile)
     if name == "static_hold":
