@@ -659,6 +659,49 @@ def test_delay_and_smoothing_tell_a_delay_from_a_filter():
     assert np.isnan(motion.delay_smoothing_s(cases[0][2][None] * 0.1, wlat, wlon, t, ok)).all()
 
 
+
+def test_the_error_step_is_measured_about_the_truth_delayed_by_the_lag():
+    """A delay adds the change of velocity times the delay to every step of the error about
+    the truth; about the truth delayed by the fixes' own lag the steps are the receiver's
+    noise again, whatever the delay. A filter's smoothing of the noise still shows; no lag
+    leaves the plain steps; steps whose delayed time falls before the truth are NaN."""
+    rng = np.random.default_rng(3)
+    t, tf, en, _ = _turning_track(rng)
+    pos = np.stack([np.interp(t, tf, en[:, a]) for a in (0, 1)], 1)
+    vel = np.zeros((t.size, 3))
+    vel[:, :2] = np.gradient(pos, t, axis=0)
+    ok = np.ones(t.size, bool)
+    noise = rng.normal(0, 0.15, (t.size, 2))
+
+    def err_of(fix_en: np.ndarray) -> np.ndarray:
+        err = np.zeros((1, t.size, 3))
+        err[0, :, :2] = fix_en - pos
+        return err
+
+    def median_steps(err: np.ndarray, lag: np.ndarray) -> float:
+        return float(np.nanmedian(motion.lag_free_steps_m(err, pos, t, lag)))
+
+    quiet = median_steps(err_of(pos + noise), np.array([np.nan]))
+    plain = np.median(np.hypot(*np.diff(noise, axis=0).T))
+    assert quiet == pytest.approx(plain, rel=1e-9)  # no lag: the plain steps
+    for delay in (0.6, 2.0, 3.5):
+        late = err_of(np.stack([np.interp(t - delay, tf, en[:, a]) for a in (0, 1)], 1) + noise)
+        lag = motion.lag_s(late, vel, ok)
+        assert lag[0] == pytest.approx(delay, abs=0.15)
+        about_truth = float(np.median(np.hypot(*np.diff(late[0, :, :2], axis=0).T)))
+        free = median_steps(late, lag)
+        assert about_truth > (1.3 if delay > 1 else 1.1) * quiet
+        assert free == pytest.approx(quiet, rel=0.15)
+        steps = motion.lag_free_steps_m(late, pos, t, lag)[0]
+        assert np.isnan(steps[:int(np.ceil(delay)) - 1]).all() and np.isfinite(steps[10:]).all()
+    y = pos + noise  # a receiver's filter of tau 2 s on its noisy fixes
+    a = 1 - math.exp(-1.0 / 2.0)
+    for i in range(1, t.size):
+        y[i] = y[i - 1] + a * (pos[i] + noise[i] - y[i - 1])
+    filtered = err_of(y)
+    assert median_steps(filtered, motion.lag_s(filtered, vel, ok)) < 0.8 * quiet
+
+
 def test_lag_is_measured_where_the_velocity_varies_and_not_where_it_is_constant():
     """A delay of 2 s on a turning track is found; on a straight track at constant speed a lag
     and a constant bias move the fixes alike, so no lag is claimed (not a huge number)."""

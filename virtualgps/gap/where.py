@@ -45,7 +45,13 @@ from virtualgps.gap.metrics import (
     errors_enu_m,
     to_regular_grid,
 )
-from virtualgps.gap.motion import delay_smoothing_s, epoch_step_s, lag_s
+from virtualgps.gap.motion import (
+    delay_smoothing_s,
+    epoch_step_s,
+    lag_free_steps_m,
+    lag_s,
+    local_en_m,
+)
 from virtualgps.gap.observed import Obs, RunView
 
 STARTUP_S = 120.0  # the start-up segment: this long after power-on
@@ -389,6 +395,7 @@ class _Segment:
     starts: bool  # the segment holds the power-on
     moving: np.ndarray  # (n,) bool, epochs moving fast enough for lag and smoothing
     steady: np.ndarray  # (n - 1,) bool, no gap between two epochs
+    truth_en_m: np.ndarray  # (n, 2) the truth, metres east and north (NaN where unknown)
     # The compared satellite-epochs lie in rows ``span`` and columns ``cols`` of the run's
     # (n, k) arrays: a time block's or a PRN's statistics read only those (a job scores some
     # ten blocks of a run, each of which was read whole before: a quarter of its job time).
@@ -447,8 +454,12 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             first = np.argmax(f, axis=1)
             out["ttff_s"] = np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s,
                                      np.nan)
+        # (the lag first: the error step is measured about the truth delayed by it)
+        lag = (lag_s(e, view.vel_enu_mps, g.moving)
+               if g.moving.sum() >= 30 and (wanted("error_step_m") or wanted("lag_s"))
+               else np.full(e.shape[0], np.nan))
         if wanted("error_step_m"):
-            d = np.hypot(np.diff(e[:, :, 0], axis=1), np.diff(e[:, :, 1], axis=1))
+            d = lag_free_steps_m(e, g.truth_en_m, t, lag)
             ok = o.fixed[:, 1:] & o.fixed[:, :-1] & epochs[1:] & g.steady
             out["error_step_m"] = row_quantile(np.where(ok, d, np.nan), 0.5)
         if wanted("frozen_fraction"):
@@ -456,7 +467,7 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             m = epochs[1:] & o.fixed[:, 1:] & o.fixed[:, :-1]
             out["frozen_fraction"] = (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
         if g.moving.sum() >= 30 and wanted("lag_s"):
-            out["lag_s"] = lag_s(e, view.vel_enu_mps, g.moving)
+            out["lag_s"] = lag
     if g.sat_mask is not None and view.assess.get("cn0"):
         tracked = g.sats(o.tracked) & g.sat_mask[None]
         if wanted("tracked_share"):
@@ -523,6 +534,7 @@ def segment_stats(
             starts=bool(view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S),
             moving=epochs & (view.speed_mps >= MOVING_MPS),
             steady=np.diff(t) < 1.5 * epoch_step_s(t),  # (no gap between the two)
+            truth_en_m=local_en_m(view.truth_lat_deg, view.truth_lon_deg),
             sat_mask=sat_mask if has_sats else None, span=span, cols=cols,
             gsa=bool(view.assess.get("gsa")) and sats is None)
     real_rows = memo.get("real") if memo else None
