@@ -92,6 +92,9 @@ def lag_free_steps_m(err_enu_m: np.ndarray, truth_en_m: np.ndarray, t_unix_s: np
         return out
     tk, xk = t_unix_s[known], truth_en_m[known]
     for i, (e, lag_i) in enumerate(zip(err_enu_m, lag, strict=True)):
+        if lag_i == 0.0:  # (no lag measured: a static log, a slow walk)
+            out[i] = np.hypot(*np.diff(e[:, :2], axis=0).T)
+            continue
         td = t_unix_s - lag_i
         past = np.stack([np.interp(td, tk, xk[:, a]) for a in (0, 1)], axis=1)
         past[(td < tk[0]) | (td > tk[-1])] = np.nan
