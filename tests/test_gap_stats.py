@@ -659,7 +659,6 @@ def test_delay_and_smoothing_tell_a_delay_from_a_filter():
     assert np.isnan(motion.delay_smoothing_s(cases[0][2][None] * 0.1, wlat, wlon, t, ok)).all()
 
 
-
 def test_the_error_step_is_measured_about_the_truth_delayed_by_the_lag():
     """A delay adds the change of velocity times the delay to every step of the error about
     the truth; about the truth delayed by the fixes' own lag the steps are the receiver's

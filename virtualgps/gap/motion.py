@@ -68,7 +68,6 @@ SMOOTH_MIN_ACC_RMS_MPS2 = 0.1
 SMOOTH_MIN_SPEED_MPS = 3.0
 
 
-
 def lag_free_steps_m(err_enu_m: np.ndarray, truth_en_m: np.ndarray, t_unix_s: np.ndarray,
                      lag_s_: np.ndarray) -> np.ndarray:
     """How far the fixes move from one epoch to the next about the truth delayed by each
