@@ -289,6 +289,64 @@ def test_a_guarded_distance_keeps_the_candidates_own_spread_when_its_centre_come
     assert bands.distance_against("hdop_median", real, ref, ref) == bands.distance(ref.z)
 
 
+def test_what_a_candidate_worsens_is_its_centres_move_not_a_narrower_spread():
+    """For the veto on worsening, a candidate whose seeds scatter less than the model before
+    it is judged by where its centre lies in that model's (wider) spread: the same centre
+    worsens nothing however narrow its spread (its own distance rises far: the tau 2.99 s
+    filter's autocorr_s after noise_level), a centre moved three of the before-model's
+    spreads away from the log worsens by more than select.WORSEN_MAX, as it does in its own
+    spread. A wider spread, or a rank-judged metric, keeps distance_against. Closed form:
+    seeds placed at the normal quantiles, so each ensemble's mean and deviation are exact."""
+    from scipy import special, stats
+
+    s = 12
+    q = special.ndtri((np.arange(s) + 0.5) / s)
+    q = q / q.std(ddof=1)  # (unit sample deviation)
+
+    def seeds(centre_m, sd_log):  # cep50_m is judged on log(x + 0.5)
+        return np.exp(np.log(centre_m + 0.5) + sd_log * q) - 0.5
+
+    real = 6.0
+    before = bands.judge("cep50_m", real, seeds(4.0, 0.3))
+    d_before = bands.distance_against("cep50_m", real, before, before, beyond=True)
+    same_narrow = bands.judge("cep50_m", real, seeds(4.0, 0.03))
+    # (in its own spread: far outside)
+    assert bands.distance(same_narrow.z) > d_before + select.WORSEN_MAX
+    d = bands.distance_moved("cep50_m", real, same_narrow, before, before)
+    assert d == pytest.approx(d_before, abs=1e-9)
+    # moved away by three of the before-model's spreads, narrower: a worsening either way
+    g_away = np.log(4.5) - 3 * 0.3
+    moved = bands.judge("cep50_m", real, seeds(float(np.exp(g_away)) - 0.5, 0.1))
+    d = bands.distance_moved("cep50_m", real, moved, before, before)
+    edge = np.log(np.exp(g_away) + 0.5)  # (the floor: 0.5 m, above 5 % of the centre)
+    z = -special.ndtri(stats.t.sf((np.log(6.5) - edge) / (0.3 * np.sqrt(1 + 1 / s)), s - 1))
+    assert d == pytest.approx(max(0.0, z - bands.DEAD_ZONE_Z), rel=1e-6)
+    assert d - d_before > select.WORSEN_MAX
+    # a wider spread, or no before-model: distance_against itself
+    wide = bands.judge("cep50_m", real, seeds(3.0, 0.6))
+    assert bands.distance_moved("cep50_m", real, wide, before, before) == \
+        bands.distance_against("cep50_m", real, wide, before, beyond=True)
+    assert bands.distance_moved("cep50_m", real, same_narrow, None, before) == \
+        bands.distance(same_narrow.z)
+    ranked = bands.judge("autocorr_s", 60.0, np.r_[np.full(6, 50.0), np.full(6, np.nan)])
+    assert ranked.rank
+    assert bands.distance_moved("autocorr_s", 60.0, ranked, before, None) == \
+        bands.distance(ranked.z)
+    # where.moved_parts over a unit's metrics, and the veto reading it
+    parts = where.moved_parts({"cep50_m": (real, same_narrow)}, {"cep50_m": (real, before)})
+    assert parts["cep50_m"] == pytest.approx(d_before, abs=1e-9)
+    b, a = np.array([1.0, 1.0]), np.array([0.5, 0.5])
+    tried = select.Tried(cand=fx.Candidate("noise_level", (), lambda p: {}, ()),
+                         fold_overrides=[], fold_points=[], before=b, after=a, before_fit=b,
+                         after_fit=a, metrics_before={"cep50_m": d_before},
+                         metrics_after={"cep50_m": bands.D_CAP},
+                         metrics_moved={"cep50_m": d_before})
+    assert select.acceptable(tried, 1.0) == (True, "")
+    tried.metrics_moved = None
+    ok, why = select.acceptable(tried, 1.0)
+    assert not ok and why.startswith("it worsens cep50_m by")
+
+
 def test_printed_step_reads_the_logs_digits():
     assert observed.printed_step(np.array([1.0, 0.99, 1.23])) == pytest.approx(0.01)
     assert observed.printed_step(np.array([0.9, 1.1, 2.0])) == pytest.approx(0.1)

@@ -450,6 +450,32 @@ def distance_against(metric: str, real: float, own: Judged, ref: Judged | None,
     return d
 
 
+def distance_moved(metric: str, real: float, own: Judged, before: Judged | None,
+                   ref: Judged | None) -> float:
+    """One metric's distance for judging what a candidate worsens: :func:`distance_against`
+    (``beyond``), but where the candidate's seeds scatter less than the model before it, no
+    more than its centre's distance in that model's wider spread. A candidate worsens a metric
+    by moving its centre away from the real value, not by narrowing the seeds' spread about
+    the same centre: that only shows a miss the model before had too, hidden in its scatter.
+    (A tau 2.99 s filter injected into the GSDC drive: after ``nav_filter``, ``noise_level``
+    took the moving ``autocorr_s``'s centre from 53.3 to 50.8 s against the log's 63.3 s,
+    and its 95 % band from 36-80 s to 42-63 s: distance 0 -> 1.64, and it was refused.)
+    A centre that moves away is judged in the wider spread; the score itself keeps the
+    candidate's own spread.
+
+    own, before, ref : :func:`judge` of the real value against the candidate's seeds, the
+        model's before it (None: not judged there) and the profile under test's (None: none)
+    """
+    d = distance_against(metric, real, own, ref, beyond=True)
+    if (before is None or own.rank or before.rank or not math.isfinite(d)
+            or not (math.isfinite(own.sd_g) and math.isfinite(before.sd_g))
+            or before.sd_g <= own.sd_g):
+        return d
+    p, z, floor = _predictive(METRICS[metric], real, own.centre, before.sd_g, before.n)
+    wide = own._replace(p=p, z=z, floor=floor, n=before.n, sd_g=before.sd_g)
+    return min(d, distance_against(metric, real, wide, ref, beyond=True))
+
+
 def _beyond_cap(spec: MetricSpec, miss_own: float, miss_ref: float, tol: float, ref: Judged
                 ) -> float:
     """What a guarded distance adds at D_CAP when asked (``beyond``): how much further the

@@ -11,8 +11,11 @@ against a simulated 1.0028 would be a gap that no effect explains.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
+
+from virtualgps.gap.motion import local_en_m
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,12 @@ class RunView:
         """(n,) truth speed over ground, m/s (0 where unknown)."""
         v = np.nan_to_num(self.vel_enu_mps)
         return np.hypot(v[:, 0], v[:, 1])
+
+    @cached_property
+    def truth_en_m(self) -> np.ndarray:
+        """(n, 2) the truth, metres east and north of its first known point (NaN where
+        unknown); worked out once per run, not per segment (a run has hundreds)."""
+        return local_en_m(self.truth_lat_deg, self.truth_lon_deg)
 
 
 # The printed resolutions of a position, arc-minutes: NMEA writes minutes with 2 decimals at the

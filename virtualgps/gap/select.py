@@ -64,6 +64,9 @@ class Tried:
     fold_overrides : the override tables fitted per fold
     before, after : (F,) held-out gap per fold without and with it (held-out seeds)
     before_fit, after_fit : the same with the fitting seeds (the ranking's second opinion)
+    metrics_before, metrics_after : per-metric held-out distances without and with it
+    metrics_moved : those with it for judging what it worsens (:meth:`Simulator.moved_parts`:
+        a narrower spread about the same centre is no worsening); None: ``metrics_after``
     past_cut : a grid cut to part of its values (a later round's) was fitted against a cut
         end in some fold (:func:`.fit.pulled_past_cut`)
     """
@@ -77,6 +80,7 @@ class Tried:
     after_fit: np.ndarray
     metrics_before: dict[str, float]
     metrics_after: dict[str, float]
+    metrics_moved: dict[str, float] | None = None
     tied_with: list[str] = field(default_factory=list)
     past_cut: bool = False
 
@@ -141,6 +145,8 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
             per_fold(fold_tables, FIT), per_fold(with_t, FIT),
             _mean_parts([sim.parts(fold_tables[f], HELD, folds[f]) for f in range(n_f)]),
             _mean_parts([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)]),
+            _mean_parts([sim.moved_parts(with_t[f], fold_tables[f], HELD, folds[f])
+                         for f in range(n_f)]),
             past_cut=ci in past_cut))
     return out
 
@@ -197,11 +203,17 @@ def acceptable(tr: Tried, current: float) -> tuple[bool, str]:
         return False, "the gain is not repeated with the other seed set"
     if not np.sum(w * (per > 0)) > 0.5 * w.sum():
         return False, "it helps fewer than half of the held-out units it changes"
-    worse = {m: tr.metrics_after[m] - tr.metrics_before.get(m, 0.0) for m in tr.metrics_after}
-    worse = {m: d for m, d in worse.items() if d > WORSEN_MAX}
+    worse = {m: d for m, d in worsened(tr).items() if d > WORSEN_MAX}
     if worse:
         return False, "it worsens " + ", ".join(f"{m} by {d:.2f}" for m, d in worse.items())
     return True, ""
+
+
+def worsened(tr: Tried) -> dict[str, float]:
+    """How much a candidate raises each metric's held-out distance (negative: lowers it),
+    judged by its centres' moves (``metrics_moved``) where given."""
+    after = tr.metrics_after if tr.metrics_moved is None else tr.metrics_moved
+    return {m: d - tr.metrics_before.get(m, 0.0) for m, d in after.items()}
 
 
 @dataclass
@@ -456,9 +468,7 @@ def select(sim: Simulator, base: dict, units: list[int], fit_units: list[int],
 def entry(tr: Tried, sim: Simulator, folds: list[list[int]], fitted: Fitted | None) -> dict:
     """A report entry for a tried candidate."""
     c = tr.cand
-    worse = {m: round(tr.metrics_after[m] - tr.metrics_before.get(m, 0.0), 3)
-             for m in tr.metrics_after
-             if tr.metrics_after[m] - tr.metrics_before.get(m, 0.0) > FLAT_MIN}
+    worse = {m: round(d, 3) for m, d in worsened(tr).items() if d > FLAT_MIN}
     out = {
         "name": c.name,
         "params": c.params_of(fitted.overrides if fitted is not None else tr.fold_overrides[0]),
@@ -470,6 +480,7 @@ def entry(tr: Tried, sim: Simulator, folds: list[list[int]], fitted: Fitted | No
         "fold_params": [c.params_of(o) for o in tr.fold_overrides],
         "metrics_before": tr.metrics_before,
         "metrics_after": tr.metrics_after,
+        "metrics_moved": tr.metrics_after if tr.metrics_moved is None else tr.metrics_moved,
         "worsens": worse,
         "tied_with": list(tr.tied_with),
         "parameters": c.complexity,

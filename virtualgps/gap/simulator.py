@@ -44,6 +44,7 @@ from virtualgps.gap.where import (
     gap_score,
     judge_scored,
     merge_stats,
+    moved_parts,
     pack_vectors,
     prn_tracking,
     segment_stats,
@@ -414,6 +415,22 @@ class Simulator:
         """Mean distance per metric over the units that assess it."""
         key = self.key(table)
         per = [self._unit_gap(key, seed_set, u)[1] for u in units]
+        names = sorted({m for p in per for m in p})
+        return {m: _mean([p[m] for p in per if m in p]) for m in names}
+
+    def moved_parts(self, table: dict[str, Any], before: dict[str, Any], seed_set: int,
+                    units: Sequence[int]) -> dict[str, float]:
+        """Mean per-metric distance over the units that assess it, for judging what ``table``
+        worsens against ``before`` (the model it adds to): a metric whose seeds scatter less
+        than the model before's counts its centre's move, not the narrower spread
+        (:func:`virtualgps.gap.where.moved_parts`)."""
+        per = []
+        for u in units:
+            ref = (self._scores.get((self.reference, HELD, u)) if self.reference is not None
+                   else None)
+            per.append(moved_parts(self.scores(table, seed_set, [u])[0].judged,
+                                   self.scores(before, seed_set, [u])[0].judged,
+                                   ref.judged if ref is not None else None))
         names = sorted({m for p in per for m in p})
         return {m: _mean([p[m] for p in per if m in p]) for m in names}
 

@@ -35,6 +35,7 @@ from virtualgps.gap.bands import (
     bh_alpha,
     distance,
     distance_against,
+    distance_moved,
     holdout_p,
     judge,
 )
@@ -50,7 +51,6 @@ from virtualgps.gap.motion import (
     epoch_step_s,
     lag_free_steps_m,
     lag_s,
-    local_en_m,
 )
 from virtualgps.gap.observed import Obs, RunView
 
@@ -395,7 +395,6 @@ class _Segment:
     starts: bool  # the segment holds the power-on
     moving: np.ndarray  # (n,) bool, epochs moving fast enough for lag and smoothing
     steady: np.ndarray  # (n - 1,) bool, no gap between two epochs
-    truth_en_m: np.ndarray  # (n, 2) the truth, metres east and north (NaN where unknown)
     # The compared satellite-epochs lie in rows ``span`` and columns ``cols`` of the run's
     # (n, k) arrays: a time block's or a PRN's statistics read only those (a job scores some
     # ten blocks of a run, each of which was read whole before: a quarter of its job time).
@@ -459,7 +458,7 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
                if g.moving.sum() >= 30 and (wanted("error_step_m") or wanted("lag_s"))
                else np.full(e.shape[0], np.nan))
         if wanted("error_step_m"):
-            d = lag_free_steps_m(e, g.truth_en_m, t, lag)
+            d = lag_free_steps_m(e, view.truth_en_m, t, lag)
             ok = o.fixed[:, 1:] & o.fixed[:, :-1] & epochs[1:] & g.steady
             out["error_step_m"] = row_quantile(np.where(ok, d, np.nan), 0.5)
         if wanted("frozen_fraction"):
@@ -534,7 +533,6 @@ def segment_stats(
             starts=bool(view.started and epochs[0] and t[0] - view.power_on_unix_s < STARTUP_S),
             moving=epochs & (view.speed_mps >= MOVING_MPS),
             steady=np.diff(t) < 1.5 * epoch_step_s(t),  # (no gap between the two)
-            truth_en_m=local_en_m(view.truth_lat_deg, view.truth_lon_deg),
             sat_mask=sat_mask if has_sats else None, span=span, cols=cols,
             gsa=bool(view.assess.get("gsa")) and sats is None)
     real_rows = memo.get("real") if memo else None
@@ -612,6 +610,27 @@ def gap_score(judged: dict[str, tuple[float, Judged]],
             parts[m] = d
             total += min(d, D_CAP)
     return (total / len(parts) if parts else float("nan")), parts
+
+
+def moved_parts(judged: dict[str, tuple[float, Judged]],
+                before: dict[str, tuple[float, Judged]],
+                ref: dict[str, tuple[float, Judged]] | None = None) -> dict[str, float]:
+    """A candidate's per-metric distances for judging what it worsens against the model
+    before it: :func:`gap_score`'s parts, each no more than its centre's distance in the
+    before-model's spread where that is wider (:func:`virtualgps.gap.bands.distance_moved`).
+
+    judged, before, ref : :func:`judge_scored` of the candidate's, the model-before's and the
+        profile under test's seeds over one unit
+    Returns {metric: distance} (uncapped, as :func:`gap_score`'s parts)
+    """
+    parts = {}
+    for m, (real, j) in judged.items():
+        b, r = before.get(m), ref.get(m) if ref is not None else None
+        d = distance_moved(m, real, j, b[1] if b is not None else None,
+                           r[1] if r is not None else None)
+        if math.isfinite(d):
+            parts[m] = d
+    return parts
 
 
 def judged_rows(stats: SegmentStats, segment: str) -> list[dict]:
