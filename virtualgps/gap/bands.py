@@ -458,8 +458,9 @@ def distance_moved(metric: str, real: float, own: Judged, before: Judged | None,
     by moving its centre away from the real value, not by narrowing the seeds' spread about
     the same centre: that only shows a miss the model before had too, hidden in its scatter.
     (A tau 2.99 s filter injected into the GSDC drive: after ``nav_filter``, ``noise_level``
-    took the moving ``autocorr_s``'s centre from 53.3 to 50.8 s against the log's 63.3 s,
-    and its 95 % band from 36-80 s to 42-63 s: distance 0 -> 1.64, and it was refused.)
+    took the moving run's ``autocorr_s`` centre from 53.3 to 50.8 s against the log's 63.3 s,
+    and its 95 % band from 36-80 s to 42-63 s: distance 0 -> 1.64 there; on the held-out
+    blocks it "worsened autocorr_s by 1.28" and was refused.)
     A centre that moves away is judged in the wider spread; the score itself keeps the
     candidate's own spread.
 
