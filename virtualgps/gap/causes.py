@@ -38,7 +38,8 @@ import numpy as np
 from scipy import special
 
 from virtualgps import geodesy
-from virtualgps.gap.motion import lag_s
+from virtualgps.gap.bands import METRICS
+from virtualgps.gap.motion import fix_lag_s, lag_s
 from virtualgps.gap.runs import Run
 from virtualgps.gap.where import MOVING_MPS, errors_enu
 from virtualgps.sky import systems
@@ -329,11 +330,24 @@ def lag_reading(cause: dict) -> str:
     return said
 
 
+def _signed_lag_s(run: Run, epochs: np.ndarray) -> float:
+    """The real fixes' lag behind the truth over some epochs, seconds, as the ``lag_s`` metric
+    measures it (:func:`~virtualgps.gap.motion.fix_lag_s`); where that stays under the
+    metric's floor (the fit of the steps stops at a lag of 0), the least-squares lag on the
+    levels, which can be negative: a log ahead of its truth."""
+    v = run.view
+    lag = float(fix_lag_s(run.err_real, v.vel_enu_mps, v.truth_lat_deg, v.truth_lon_deg,
+                          v.t_unix_s, epochs, ~v.near_building)[0])
+    if math.isfinite(lag) and lag >= METRICS["lag_s"].floor:
+        return lag
+    return float(lag_s(run.err_real, v.vel_enu_mps, epochs)[0])
+
+
 def time_offset(run: Run, corr_time_s: float) -> dict | None:
     """The log-vs-truth lag of one moving run: the ingest's estimate (median distance over
-    +-30 s, widened to +-600 s while its best lies at the end), and the least-squares lag of
-    the fixes behind the truth per block with a 95 % interval over blocks (None where the
-    truth does not move, or moves at one velocity)."""
+    +-30 s, widened to +-600 s while its best lies at the end), and the lag of the fixes
+    behind the truth (:func:`_signed_lag_s`) over the run and per block, with a 95 % interval
+    over blocks (None where the truth does not move, or moves at one velocity)."""
     v = run.view
     info = run.info.get("offset", {})
     moving = v.valid & (v.speed_mps >= MOVING_MPS)
@@ -341,9 +355,9 @@ def time_offset(run: Run, corr_time_s: float) -> dict | None:
         return None
     length = max(60.0, corr_time_s if math.isfinite(corr_time_s) else 60.0)
     bl = [m for m in _blocks(v.t_unix_s, moving, length) if m.sum() >= LAG_MIN_MOVING]
-    lags = np.array([lag_s(run.err_real, v.vel_enu_mps, m)[0] for m in bl])
+    lags = np.array([_signed_lag_s(run, m) for m in bl])
     lags = lags[np.isfinite(lags)]
-    whole = float(lag_s(run.err_real, v.vel_enu_mps, moving)[0])
+    whole = _signed_lag_s(run, moving)
     if not math.isfinite(whole):  # a truth at constant velocity: a lag is a bias there
         return None
     out = {"name": "time_offset", "kind": "clock", "run": v.name, "lag_s": whole,

@@ -49,8 +49,8 @@ from virtualgps.gap.metrics import (
 from virtualgps.gap.motion import (
     delay_smoothing_s,
     epoch_step_s,
+    fix_lag_s,
     lag_free_steps_m,
-    lag_s,
 )
 from virtualgps.gap.observed import Obs, RunView
 
@@ -413,8 +413,7 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
                 ) -> dict[str, np.ndarray]:
     """The per-row metrics of one side (the real log, s = 1, or the seeds; its output over
     the segment's satellites, :meth:`_Segment.sats`) over a segment: {metric: (s,)}; the
-    pairwise metrics (eq4_deg, tracked_agreement) are not here. Smoothing is left to
-    :func:`segment_stats` (one call serves both sides)."""
+    pairwise metrics (eq4_deg, tracked_agreement) are not here."""
     out: dict[str, np.ndarray] = {}
     view, epochs = g.view, g.epochs
     t = view.t_unix_s
@@ -454,7 +453,8 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             out["ttff_s"] = np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s,
                                      np.nan)
         # (the lag first: the error step is measured about the truth delayed by it)
-        lag = (lag_s(e, view.vel_enu_mps, g.moving)
+        lag = (fix_lag_s(e, view.vel_enu_mps, view.truth_lat_deg, view.truth_lon_deg, t,
+                         g.moving, ~view.near_building)
                if g.moving.sum() >= 30 and (wanted("error_step_m") or wanted("lag_s"))
                else np.full(e.shape[0], np.nan))
         if wanted("error_step_m"):
@@ -467,6 +467,9 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             out["frozen_fraction"] = (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
         if g.moving.sum() >= 30 and wanted("lag_s"):
             out["lag_s"] = lag
+        if g.moving.sum() >= 30 and wanted("smoothing_s"):
+            out["smoothing_s"] = delay_smoothing_s(e, view.truth_lat_deg, view.truth_lon_deg,
+                                                   t, g.moving)[1]
     if g.sat_mask is not None and view.assess.get("cn0"):
         tracked = g.sats(o.tracked) & g.sat_mask[None]
         if wanted("tracked_share"):
@@ -540,16 +543,6 @@ def segment_stats(
         real_rows = _side_stats(g, view.real, err_real, wanted)
     have = {m for m, v in real_rows.items() if np.isfinite(v[0])}
     sim_rows = _side_stats(g, sims, err_sim, lambda m: m in have)
-    smooth = g.position and g.moving.sum() >= 30 and wanted("smoothing_s")
-    if smooth:
-        fresh = "smoothing_s" not in real_rows
-        both = np.concatenate((err_real, err_sim)) if fresh else err_sim
-        _, tau = delay_smoothing_s(both, view.truth_lat_deg, view.truth_lon_deg,
-                                   view.t_unix_s, g.moving)
-        if fresh:
-            real_rows["smoothing_s"], tau = tau[:1], tau[1:]
-        if np.isfinite(real_rows["smoothing_s"][0]):
-            sim_rows["smoothing_s"] = tau
     if memo is not None:
         memo.update(segment=g, real=real_rows)
     real, sim, pair = {}, {}, {}
