@@ -757,6 +757,11 @@ def test_the_lag_from_the_steps_is_pinned_down_where_a_slow_error_hides_it():
     assert motion.fix_lag_s(mixed, vel, lat, lon, t, ok)[0] > 1.2
     assert motion.fix_lag_s(mixed, vel, lat, lon, t, ok, ~half)[0] == pytest.approx(0.6,
                                                                                     abs=0.05)
+    # a fit already made over the same epochs is used; over others it is not
+    fit = motion.delay_smoothing_s(err, lat, lon, t, ok)
+    assert np.array_equal(motion.fix_lag_s(err, vel, lat, lon, t, ok, None, fit), steps)
+    wrong = (np.zeros(1), np.zeros(1))
+    assert motion.fix_lag_s(mixed, vel, lat, lon, t, ok, ~half, wrong)[0] > 0.5
     # a first-order filter of 1 s at 1 Hz: y_k = (1 - a) x_k + a y_(k-1), a = e^-1
     a = math.exp(-1.0)
     assert motion.steps_lag_s(np.array([0.3]), np.array([1.0]))[0] == pytest.approx(

@@ -234,7 +234,8 @@ def steps_lag_s(delay_s: np.ndarray, tau_s: np.ndarray, step_s: float = 1.0) -> 
 
 def fix_lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, truth_lat_deg: np.ndarray,
               truth_lon_deg: np.ndarray, t_unix_s: np.ndarray, epochs: np.ndarray,
-              clear: np.ndarray | None = None) -> np.ndarray:
+              clear: np.ndarray | None = None,
+              fitted: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """How far the fixes lag behind the truth, seconds, per seed. Where the truth's steps
     over the ``clear`` epochs show its motion (:func:`steps_show_motion`): the lag of the delay
     and filter that best follow it there, step to step (:func:`delay_smoothing_s`,
@@ -253,11 +254,14 @@ def fix_lag_s(err_enu_m: np.ndarray, vel_enu_mps: np.ndarray, truth_lat_deg: np.
     open ones; on the levels -0.02 s, sd 0.17 s).
 
     err_enu_m : (s, n, 3) metres; vel_enu_mps : (n, 3); truth_lat_deg, truth_lon_deg,
-    t_unix_s, epochs, clear : (n,), the last two bool; returns (s,) seconds
+    t_unix_s, epochs, clear : (n,), the last two bool; fitted : :func:`delay_smoothing_s` of
+    these errors over ``epochs``, where already made (used where ``clear`` leaves out none
+    of them); returns (s,) seconds
     """
     at = epochs if clear is None else epochs & clear
     if steps_show_motion(truth_lat_deg, truth_lon_deg, t_unix_s, at):
-        delay, tau = delay_smoothing_s(err_enu_m, truth_lat_deg, truth_lon_deg, t_unix_s, at)
+        delay, tau = (fitted if fitted is not None and np.array_equal(at, epochs) else
+                      delay_smoothing_s(err_enu_m, truth_lat_deg, truth_lon_deg, t_unix_s, at))
         step = _truth_responses(truth_lat_deg, truth_lon_deg, t_unix_s).step
         return steps_lag_s(delay, tau, step)
     return lag_s(err_enu_m, vel_enu_mps, epochs)

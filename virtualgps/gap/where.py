@@ -452,10 +452,14 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             first = np.argmax(f, axis=1)
             out["ttff_s"] = np.where(f.any(axis=1), t[epochs][first] - view.power_on_unix_s,
                                      np.nan)
-        # (the lag first: the error step is measured about the truth delayed by it)
+        # (the lag first: the error step is measured about the truth delayed by it; the fit
+        # of the fixes' steps gives the smoothing, and the lag where no building is near)
+        moving = g.moving.sum() >= 30
+        fitted = (delay_smoothing_s(e, view.truth_lat_deg, view.truth_lon_deg, t, g.moving)
+                  if moving and wanted("smoothing_s") else None)
         lag = (fix_lag_s(e, view.vel_enu_mps, view.truth_lat_deg, view.truth_lon_deg, t,
-                         g.moving, ~view.near_building)
-               if g.moving.sum() >= 30 and (wanted("error_step_m") or wanted("lag_s"))
+                         g.moving, ~view.near_building, fitted)
+               if moving and (wanted("error_step_m") or wanted("lag_s"))
                else np.full(e.shape[0], np.nan))
         if wanted("error_step_m"):
             d = lag_free_steps_m(e, view.truth_en_m, t, lag)
@@ -465,11 +469,10 @@ def _side_stats(g: _Segment, o: Obs, e: np.ndarray, wanted: Callable[[str], bool
             same = (np.diff(o.lat_deg, axis=1) == 0) & (np.diff(o.lon_deg, axis=1) == 0)
             m = epochs[1:] & o.fixed[:, 1:] & o.fixed[:, :-1]
             out["frozen_fraction"] = (same & m).sum(axis=1) / np.maximum(m.sum(axis=1), 1)
-        if g.moving.sum() >= 30 and wanted("lag_s"):
+        if moving and wanted("lag_s"):
             out["lag_s"] = lag
-        if g.moving.sum() >= 30 and wanted("smoothing_s"):
-            out["smoothing_s"] = delay_smoothing_s(e, view.truth_lat_deg, view.truth_lon_deg,
-                                                   t, g.moving)[1]
+        if fitted is not None:
+            out["smoothing_s"] = fitted[1]
     if g.sat_mask is not None and view.assess.get("cn0"):
         tracked = g.sats(o.tracked) & g.sat_mask[None]
         if wanted("tracked_share"):
