@@ -426,19 +426,22 @@ def _candidate(name: str, profile: dict, baseline: bool, dop: bool, has_mesh: bo
                                                        p["elevation_mask_deg"]}},
                          ("elevation_mask_deg",), {"elevation_mask_deg": cur})
     if name == "latency":
-        # steps of 0.1-0.15 s below 1 s: a first-order filter of tau lags by
-        # exp(-dt/tau) / (1 - exp(-dt/tau)) epochs (0.58 s at tau 1 s, 1 Hz), and a latency
-        # between grid points lost to the filter's nearer lag
+        # steps of 0.1-0.15 s below 1 s and 0.25 s to 2.5 s: a first-order filter of tau
+        # lags by exp(-dt/tau) / (1 - exp(-dt/tau)) epochs (0.58 s at tau 1 s, 1 Hz), and a
+        # latency between grid points lost to the filter's nearer lag (the lag is measured to
+        # a few hundredths of a second: motion.fix_lag_s)
         axes = (Axis("latency_s", (0.1, 0.25, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.25, 1.5,
-                                   2.0, 2.5, 3.0), 0.0, 30.0),)
+                                   1.75, 2.0, 2.25, 2.5, 3.0), 0.0, 30.0),)
         return _table_candidate(name, name, on, axes, profile)
     if name == "nav_filter":
-        # 0.5 s steps where receivers' filters lie: with coarser grids a pure delay fits a
-        # filter's lag better than the filter itself does, and back
+        # 0.25 s steps where receivers' filters lie: with coarser grids a pure delay fits a
+        # filter's lag better than the filter itself does, and back (steps of 0.5 s move a
+        # filter's lag by 0.5 s at 1 Hz, and the lag is measured to a few hundredths: a
+        # filter of 1.73 s, lag 1.28 s, was taken for a latency of 1.25 s)
         # and whether it follows the motion with the receiver's own velocity (smoothing only
         # the error, without lag: a phone's filter) or low-passes the position itself
-        axes = (Axis("tau_s", (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 6.0, 8.0, 16.0), 0.0,
-                     120.0),
+        axes = (Axis("tau_s", (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.5,
+                               4.0, 6.0, 8.0, 16.0), 0.0, 120.0),
                 Axis("velocity_aided", (False, True)))
         return _table_candidate(name, name, on, axes, profile)
     if name == "static_hold":
