@@ -106,6 +106,8 @@ METRICS: dict[str, MetricSpec] = {
     "bias_m": MetricSpec("log", 0.5, 0.5, 0.05, score=False, unit="m"),
     "autocorr_s": MetricSpec("log", 2.0, 2.0, 0.05, nan_high=True, unit="s"),
     "error_step_m": MetricSpec("log", 0.1, 0.05, 0.05, unit="m"),
+    # (a tenth of itself beyond a second: the lag is measured to a few hundredths of a second,
+    # and the latency and nav_filter grids' lags lie 0.25-0.5 s apart there)
     "lag_s": MetricSpec("lin", floor=0.1, rel_floor=0.1, unit="s"),
     # (estimated on ~1 Hz steps: a filter of under half a step, e^-2 of the last fix carried
     # into the next, is no smoothing one could see, and its estimate is the noise's; the
