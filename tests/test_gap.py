@@ -1200,7 +1200,9 @@ def test_the_choice_does_not_depend_on_how_jobs_are_cut_or_when_they_finish(tmp_
         many, _, _ = tool.diagnose(inp, opts)
     finally:
         jobs.model(None)
-    assert sum(many["batches"]) > 2 * sum(one["batches"])  # (seed sets cut into groups)
+    # (seed sets cut into groups: more jobs; how many more depends on how full the batches
+    # are, which the candidates' grids set)
+    assert sum(many["batches"]) > sum(one["batches"])
     for k in ("effects", "outer", "gap_baseline", "gap_final", "selection_rounds"):
         assert many[k] == one[k], k
     assert one["effects"] and one["effects"][0]["name"] == "latency"

@@ -311,10 +311,12 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
 
     def fit(wt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(tau index, whole delay, fraction) per seed minimising the weighted squares."""
-        b = ((wt[..., None] * d_fix).reshape(s, 2 * m) @ flat.T).reshape(
-            s, n_tau, n_shift + 1)  # sum w D.P_j
-        c = (wt @ same.T).reshape(s, n_tau, n_shift + 1)  # sum w |P_j|^2
-        x = (wt @ nxt.T).reshape(s, n_tau, n_shift)  # sum w P_j.P_(j+1)
+        # (row by row: a product of all seeds at once rounds its last bits by how many rows
+        # it holds, and a seed's lag must not depend on how the seeds were cut into jobs)
+        wd = (wt[..., None] * d_fix).reshape(s, 2 * m)
+        b = np.stack([r @ flat.T for r in wd]).reshape(s, n_tau, n_shift + 1)  # sum w D.P_j
+        c = np.stack([r @ same.T for r in wt]).reshape(s, n_tau, n_shift + 1)  # sum w |P_j|^2
+        x = np.stack([r @ nxt.T for r in wt]).reshape(s, n_tau, n_shift)  # sum w P_j.P_(j+1)
         # the fraction f between delays j and j + 1 minimising
         # -2 (1-f) B_j - 2 f B_(j+1) + (1-f)^2 C_j + 2 f (1-f) X_j + f^2 C_(j+1)
         bj, bk, cj, ck = b[..., :-1], b[..., 1:], c[..., :-1], c[..., 1:]
