@@ -485,6 +485,58 @@ def test_real_logs_load(shared_data):
     assert abs(gs.time_offset_s) < 2.0, gs.offset_info
 
 
+def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_data):
+    """The GSDC drive's SPAN truth drops out 31 times (quality 0 for 3-68 epochs). No epoch in
+    a gap is compared, but the simulated receiver runs on through those of up to
+    SIM_MAX_GAP_S on the straight line between the truth's ends, as the real one did: a
+    navigation filter carries its lag across (restarted after each gap, it lagged by nothing
+    at the first epochs after it, where a real filter lagged ~35 m); beyond, it has no
+    position. And an epoch after a gap has the truth's speed: it read 0 and counted as
+    stationary at 25 m/s."""
+    from virtualgps.gap import tool
+    from virtualgps.gap.ensemble import EnsembleJob, simulate_job
+    from virtualgps.gap.runs import SIM_MAX_GAP_S, prepare_runs, sim_obs
+
+    d = shared_data / "gsdc-2020-05-14-mtv"
+    inp = tool.GapInputs(real=(str(d / "Pixel4_chipset.nmea"),),
+                         truth=(str(d / "SPAN_Pixel4_1Hz.nmea"),), scene="none",
+                         tle=str(d / "gps-ops_2020-05-14T22Z.tle"), profile="holux-m1000")
+    runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
+    run = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source),
+                       lambda t0: 0.0, 1, None)[0]
+    setup, view = run.setup, run.view
+    t, valid = view.t_unix_s, view.valid
+    k = np.flatnonzero(valid)
+    gap = np.flatnonzero(np.diff(t[k]) > 3.0)  # (the truth's own gaps, TRUTH_MAX_GAP_S)
+    before, after = k[gap], k[gap + 1]
+    bridged = t[after] - t[before] <= SIM_MAX_GAP_S
+    assert gap.size >= 25 and 15 <= bridged.sum() < gap.size
+    for b, a, br in zip(before, after, bridged, strict=True):
+        assert setup.pose_valid[b:a + 1].all() == br
+    # speeds: known at every compared epoch but one alone between gaps (unknown: in neither
+    # segment), and an epoch counts as stationary only where the truth's own steps about it
+    # are slow
+    speed, posed = view.speed_mps, setup.pose_valid
+    alone = posed & ~np.r_[False, posed[:-1]] & ~np.r_[posed[1:], False]
+    assert np.isfinite(speed[valid & ~alone]).all() and np.isnan(speed[alone]).all()
+    en = view.truth_en_m
+    step = np.full(t.size, np.nan)
+    step[k[1:]] = np.hypot(*np.diff(en[k], axis=0).T) / np.diff(t[k])
+    still = where.segments(view)["stationary"]
+    assert still.sum() > 30 and np.nanmax(step[still]) < 1.0
+    assert (speed[after] > 10.0).sum() >= 20
+    # a 2 s filter lags a steady v by v a / (1 - a) seconds at 1 Hz (a = e^-0.5): 1.54 s
+    nf = fx.apply(table, {"nav_filter": {"enabled": True, "tau_s": 2.0,
+                                         "velocity_aided": False}})
+    sims = sim_obs(simulate_job(EnsembleJob(setup, build_profile(nf, source), (0, 1, 2))),
+                   view)
+    err = np.hypot(*where.errors_enu(view, sims)[..., :2].transpose(2, 0, 1))
+    fast = bridged & (speed[after] > 10.0)
+    lag_m = speed[after[fast]] * math.exp(-0.5) / (1.0 - math.exp(-0.5))
+    assert fast.sum() >= 15
+    assert np.median(err[:, after[fast]] / lag_m) > 0.8, err[:, after[fast]] / lag_m
+
+
 # --- self-check and real cases -------------------------------------------------------------------
 
 

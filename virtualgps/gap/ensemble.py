@@ -43,9 +43,9 @@ class RunSetup:
     key : unique name of the run
     t_unix_s : (n,) float, the real log's epoch times, UTC seconds
     antenna_enu_m : (n, 3) float, metres, the truth in the scene frame of ``georef`` (0 where
-        not valid)
-    vel_enu_mps : (n, 3) float, m/s, ENU (0 where not valid)
-    valid : (n,) bool, the truth is known at the epoch
+        not posed)
+    vel_enu_mps : (n, 3) float, m/s, ENU (NaN where unknown)
+    valid : (n,) bool, the truth is known at the epoch (only these epochs are compared)
     power_on_unix_s : when the real receiver was switched on (its log's first epoch), UTC s;
         NaN: the log starts with a fix (the receiver was already running: no start-up)
     georef : the scene origin
@@ -56,6 +56,9 @@ class RunSetup:
     systems : RINEX letters of the systems whose satellites are compared (the columns of the
         run's view: those the profile under test tracks and those a ``constellations``
         candidate may add); a profile tracking fewer leaves the others' columns empty
+    posed : (n,) bool, the epochs the simulated receiver has a position at: ``valid`` and
+        short gaps in the truth, bridged (``virtualgps.gap.runs.SIM_MAX_GAP_S``); None:
+        ``valid``
     """
 
     key: str
@@ -70,6 +73,12 @@ class RunSetup:
     sky_shift_s: float = 0.0
     digest: str = ""
     systems: str = "G"
+    posed: np.ndarray | None = None
+
+    @property
+    def pose_valid(self) -> np.ndarray:
+        """(n,) bool, the epochs the simulated receiver has a position at."""
+        return self.valid if self.posed is None else self.posed
 
 
 def setup_digest(t_unix_s: np.ndarray, antenna_enu_m: np.ndarray, valid: np.ndarray,
@@ -187,7 +196,7 @@ def _sky_key(setup: RunSetup, profile: Profile) -> tuple:
 
 
 def _antenna(setup: RunSetup) -> np.ndarray:
-    return np.where(setup.valid[:, None], setup.antenna_enu_m, 0.0)
+    return np.where(setup.pose_valid[:, None], setup.antenna_enu_m, 0.0)
 
 
 def run_sky(rx: Receiver, setup: RunSetup) -> Sky:
@@ -226,7 +235,7 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
     rx = receiver_for(setup, prof)
     sky = run_sky(rx, setup)
     ant = _antenna(setup)
-    vel = np.where(setup.valid[:, None], setup.vel_enu_mps, 0.0)
+    vel = np.where(setup.pose_valid[:, None], np.nan_to_num(setup.vel_enu_mps), 0.0)
     n_sat = len(rx.ephemeris.prn)
     cols = _view_columns(setup, rx)
     out: dict[str, list[np.ndarray]] = {k: [] for k in Ensemble.__dataclass_fields__}
@@ -237,7 +246,8 @@ def simulate_job(job: EnsembleJob) -> Ensemble:
         start_rng = np.random.default_rng([seed, 1])
         state = (initial_state(prof, setup.power_on_unix_s, start_rng, n_sat)
                  if np.isfinite(setup.power_on_unix_s) else running_state(prof, n_sat))
-        fixes, _ = simulate(rx, setup.t_unix_s, ant, vel, setup.valid, state, rng, sky=sky)
+        fixes, _ = simulate(rx, setup.t_unix_s, ant, vel, setup.pose_valid, state, rng,
+                            sky=sky)
         out["seeds"].append(np.array([seed]))
         out["lat_deg"].append(fixes.lat_deg)
         out["lon_deg"].append(fixes.lon_deg)

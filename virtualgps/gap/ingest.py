@@ -393,7 +393,8 @@ def estimate_time_offset_s(
 
 
 def truth_positions(
-    run: RealRun, t_unix_s: np.ndarray, georef: Georef | None = None
+    run: RealRun, t_unix_s: np.ndarray, georef: Georef | None = None,
+    max_gap_s: float = TRUTH_MAX_GAP_S,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The truth at the real log's epochs (the clock offset applied).
 
@@ -402,12 +403,14 @@ def truth_positions(
     run : the run
     t_unix_s : (n,) UTC seconds, the real epochs
     georef : the scene origin (needed for a truth in the scene's ENU frame)
+    max_gap_s : truth poses further apart than this, seconds, leave the epochs between
+        unknown (those are interpolated linearly)
 
     Returns
     -------
     lat_deg, lon_deg, alt_hae_m : (n,) float, the truth (NaN where unknown)
     valid : (n,) bool, the truth is known (inside the truth's span, not in a gap over
-        TRUTH_MAX_GAP_S)
+        ``max_gap_s``)
     """
     n = np.asarray(t_unix_s).size
     tr = run.truth
@@ -433,7 +436,7 @@ def truth_positions(
                               "needs a scene with a georeference (--scene)")
         track = _enu_track_to_geodetic(track, georef)
     p, _, ok = pose.interpolate(track, np.asarray(t_unix_s, float) - run.time_offset_s,
-                                TRUTH_MAX_GAP_S)
+                                max_gap_s)
     return p[:, 0], p[:, 1], p[:, 2], ok
 
 

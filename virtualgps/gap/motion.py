@@ -206,13 +206,21 @@ def steps_show_motion(truth_lat_deg: np.ndarray, truth_lon_deg: np.ndarray,
     truth_lat_deg, truth_lon_deg, t_unix_s : (n,); epochs : (n,) bool
     """
     tr = _truth_responses(truth_lat_deg, truth_lon_deg, t_unix_s)
-    if tr is None:
-        return False
+    return tr is not None and bool(_steps_show_motion(_usable_steps(tr, epochs), tr.acc2))
+
+
+def _usable_steps(tr: _TruthResponses, epochs: np.ndarray) -> np.ndarray:
+    """(m,) bool: the truth's steps between two of ``epochs`` that the fit counts."""
     ok = epochs[tr.idx] & tr.known
-    w = ok[1:] & ok[:-1] & tr.usable
-    wa = w[1:] & w[:-1]
-    return bool(w.sum() >= 30 and wa.any()
-                and tr.acc2[wa].mean() >= SMOOTH_MIN_ACC_RMS_MPS2 ** 2)
+    return ok[1:] & ok[:-1] & tr.usable
+
+
+def _steps_show_motion(w: np.ndarray, acc2: np.ndarray) -> np.ndarray:
+    """(...) bool per row of steps ``w`` (..., m): 30 or more of them, and the truth's
+    acceleration at the ends of neighbouring ones SMOOTH_MIN_ACC_RMS_MPS2 (rms) or more."""
+    wa = w[..., 1:] & w[..., :-1]
+    acc_ms = (wa * acc2).sum(axis=-1) / np.maximum(wa.sum(axis=-1), 1)
+    return (w.sum(axis=-1) >= 30) & (acc_ms >= SMOOTH_MIN_ACC_RMS_MPS2 ** 2)
 
 
 def steps_lag_s(delay_s: np.ndarray, tau_s: np.ndarray, step_s: float = 1.0) -> np.ndarray:
@@ -297,12 +305,10 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
         return nan
     fix = tr.truth[None] + err_enu_m[:, tr.idx, :2]
     d_fix = np.diff(fix, axis=1)  # (s, m, 2)
-    ok = (epochs[tr.idx] & tr.known)[None] & np.isfinite(fix).all(axis=2)
-    w = ok[:, 1:] & ok[:, :-1] & tr.usable[None]
+    seen = np.isfinite(fix).all(axis=2)
+    w = _usable_steps(tr, epochs)[None] & seen[:, 1:] & seen[:, :-1]
     if w.sum(axis=1).max() < 30:
         return nan
-    wa = w[:, 1:] & w[:, :-1]
-    acc_ms = (wa * tr.acc2[None]).sum(axis=1) / np.maximum(wa.sum(axis=1), 1)
     d_fix = np.where(w[..., None], d_fix, 0.0)
     n_tau, n_shift = len(SMOOTH_TAU_S), tr.n_shift
     m = d_fix.shape[1]
@@ -331,5 +337,5 @@ def delay_smoothing_s(err_enu_m: np.ndarray, truth_lat_deg: np.ndarray,
     i_tau, j, frac = fit(w.astype(float))
     delay = (j + frac) * tr.step
     tau = np.asarray(SMOOTH_TAU_S)[i_tau]
-    bad = (w.sum(axis=1) < 30) | (acc_ms < SMOOTH_MIN_ACC_RMS_MPS2 ** 2)
+    bad = ~_steps_show_motion(w, tr.acc2)
     return np.where(bad, np.nan, delay), np.where(bad, np.nan, tau)

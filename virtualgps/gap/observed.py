@@ -56,8 +56,8 @@ class RunView:
     truth_lat_deg, truth_lon_deg, truth_alt_hae_m : (n,) the truth (NaN where unknown)
     reference : "truth" (errors about the truth) or "median" (static at an unknown point:
         errors about each run's own median fix; bias not assessed)
-    vel_enu_mps : (n, 3) truth velocity; near_building : (n,) bool, some satellite above the
-        mask has its direct path through a building
+    vel_enu_mps : (n, 3) truth velocity, m/s (NaN where unknown); near_building : (n,) bool,
+        some satellite above the mask has its direct path through a building
     prn : (k,); az_deg, el_deg : (n, k) degrees
     sat_ok : (n, k) bool, comparable: above the mask and in an epoch where the real log lists
         satellites (GSV)
@@ -97,9 +97,9 @@ class RunView:
 
     @property
     def speed_mps(self) -> np.ndarray:
-        """(n,) truth speed over ground, m/s (0 where unknown)."""
-        v = np.nan_to_num(self.vel_enu_mps)
-        return np.hypot(v[:, 0], v[:, 1])
+        """(n,) truth speed over ground, m/s (NaN where unknown: neither moving nor
+        stationary)."""
+        return np.hypot(self.vel_enu_mps[:, 0], self.vel_enu_mps[:, 1])
 
     @cached_property
     def truth_en_m(self) -> np.ndarray:

@@ -738,13 +738,13 @@ def segments(view: RunView) -> dict[str, np.ndarray]:
     """The epoch segments of a run: name -> (n,) bool (empty ones left out)."""
     t = view.t_unix_s
     startup = (t - view.power_on_unix_s < STARTUP_S) & view.started
-    moving = view.speed_mps >= MOVING_MPS
+    speed = view.speed_mps  # (NaN where unknown: in neither)
     seg = {
         "all": np.ones(t.size, bool),
         "startup": startup,
         "steady": ~startup,
-        "stationary": ~moving,
-        "moving": moving,
+        "stationary": speed < MOVING_MPS,
+        "moving": speed >= MOVING_MPS,
         "near_buildings": view.near_building,
         "open": ~view.near_building,
     }
