@@ -495,6 +495,7 @@ def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_d
     stationary at 25 m/s."""
     from virtualgps.gap import tool
     from virtualgps.gap.ensemble import EnsembleJob, simulate_job
+    from virtualgps.gap.ingest import TRUTH_MAX_GAP_S
     from virtualgps.gap.runs import SIM_MAX_GAP_S, prepare_runs, sim_obs
 
     d = shared_data / "gsdc-2020-05-14-mtv"
@@ -507,7 +508,7 @@ def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_d
     setup, view = run.setup, run.view
     t, valid = view.t_unix_s, view.valid
     k = np.flatnonzero(valid)
-    gap = np.flatnonzero(np.diff(t[k]) > 3.0)  # (the truth's own gaps, TRUTH_MAX_GAP_S)
+    gap = np.flatnonzero(np.diff(t[k]) > TRUTH_MAX_GAP_S)  # (the truth's own gaps)
     before, after = k[gap], k[gap + 1]
     bridged = t[after] - t[before] <= SIM_MAX_GAP_S
     assert gap.size >= 25 and 15 <= bridged.sum() < gap.size
