@@ -641,15 +641,33 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
     assert "  nothing@holux-m1000: right 1/1" in selfcheck.summary_lines(res)
 
 
-def test_a_null_trial_takes_any_profile():
+def test_a_null_trial_takes_any_profile(tmp_path):
     """``nothing@PROFILE`` is the null of any profile (a name or a TOML path), in the four
-    kinds of place; usarsim's in open sky."""
+    kinds of place; usarsim's in open sky. A path's trial is written under the work folder,
+    its separators out of the file names."""
+    from virtualgps.gap import effects as fx
     from virtualgps.gap import synthetic
+    from virtualgps.receiver.profiles import load_profile_dict
+    from virtualgps.sky.ephemeris import default_tle_path
 
     for name in ("ublox-m8n", "phone", "my/own.toml"):
         spec = synthetic.spec_of(f"nothing@{name}")
         assert spec.base == name and spec.scenarios == synthetic.ALL_SCENARIOS
     assert synthetic.spec_of("nothing@usarsim").scenarios == ("static_open", "moving_open")
+    own = tmp_path / "mine" / "m8n-5hz.toml"
+    own.parent.mkdir()
+    table, _ = load_profile_dict("ublox-m8n")
+    own.write_text(fx.to_toml(dict(table, name="m8n-5hz", rate_hz=5.0)), encoding="utf-8")
+    work = tmp_path / "work"
+    tle = str(default_tle_path())
+    tr = synthetic.make_trial(f"nothing@{own}", 0, work, None, "", tle, tle)  # static, open
+    assert tr.scenario == "static_open" and tr.real.parent == work
+    assert tr.real.name == f"{synthetic.trial_tag(f'nothing@{own}')}-0.nmea"
+    assert "/" not in tr.real.name and tr.profile.parent == work
+    rmc = [ln for ln in tr.real.read_text().splitlines() if ln[3:6] == "RMC"]
+    assert len(rmc) == 5 * synthetic.DURATION_S + 1  # the profile's own rate, 5 Hz
+    assert synthetic.trial_tag("cold_start+latency") == "cold_start-latency"
+    assert synthetic.trial_tag("nothing@holux-m1000") == "nothing-holux-m1000"
 
 
 def test_selfcheck_tells_the_papers_noise_from_dop_driven_errors(tmp_path):

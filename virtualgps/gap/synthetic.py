@@ -25,6 +25,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -270,6 +271,12 @@ NULL_SCENARIOS = {"holux-m1000": ALL_SCENARIOS, "usarsim": ("static_open", "movi
 PAIRS = ("cold_start+latency", "cn0_tracking+static_hold")
 
 
+def trial_tag(label: str) -> str:
+    """A trial label as a file-name stem: ``cold_start+latency`` -> ``cold_start-latency``,
+    ``nothing@my/prof.toml`` -> ``nothing-my-prof.toml`` (a profile's path holds separators)."""
+    return re.sub(r"[^A-Za-z0-9_.]+", "-", label)
+
+
 @dataclass(frozen=True)
 class Trial:
     """One pseudo-real run, written to files the diagnosis reads."""
@@ -321,7 +328,7 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
     fmt = nmea.NmeaFormat.from_dict(real_prof.nmea)
     run_replay(rx, track, epoch_grid(t, real_prof.rate_hz, None), fmt, buf,
                SEED_BASE + 1000 * _label_index(label) + index)
-    tag = f"{label.replace('@', '-').replace('+', '-')}-{index}"
+    tag = f"{trial_tag(label)}-{index}"
     work.mkdir(parents=True, exist_ok=True)
     real = work / f"{tag}.nmea"
     real.write_bytes(buf.getvalue())
