@@ -1052,6 +1052,35 @@ def test_effects_none_locates_the_gaps_and_offers_no_effect(tmp_path):
     assert report["gap_final"] == report["gap_baseline"]
 
 
+def test_a_five_hertz_receivers_delay_is_found_on_its_own_epochs(tmp_path, monkeypatch):
+    """A u-blox at 5 Hz (what PX4 and ArduPilot configure) with a 1 s output delay: the
+    diagnosis runs on the log's own epochs, names the delay rather than a filter, and its
+    interval holds 1 s. (Power, docs/gap.md: a 0.6 s delay in 4 of 5 such drives at 5 Hz.)"""
+    from virtualgps.gap import synthetic, tool
+    from virtualgps.sky.ephemeris import default_tle_path
+
+    monkeypatch.chdir(tmp_path)  # (a relative label: the trial's draws follow its label)
+    table, _ = load_profile_dict("ublox-m8n")
+    five = dict(table, name="m8n-5hz", rate_hz=5.0)
+    late = dict(fx.apply(five, {"latency": {"enabled": True, "latency_s": 1.0}}), name="late")
+    for name, t in (("m8n-5hz", five), ("late", late)):
+        Path(f"{name}.toml").write_text(fx.to_toml(t), encoding="utf-8")
+    tle = str(default_tle_path())
+    tr = synthetic.make_trial("nothing@late.toml", 1, Path("w"), None, "", tle, tle)
+    assert tr.scenario == "moving_open"
+    inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene=None, tle=tle,
+                         profile="m8n-5hz.toml")
+    report, _, _ = tool.diagnose(inp, dg.Options(seeds=10, jobs=2,
+                                                 effects=("latency", "nav_filter")))
+    assert report["runs"][0]["epochs"] == 5 * synthetic.DURATION_S + 1
+    added = [e for e in report["effects"] if e.get("accepted")]
+    assert [e["name"] for e in added] == ["latency"], report["effects"]
+    lo, hi = added[0]["fit"]["spans"]["latency_s"]
+    assert lo <= 1.0 <= hi and hi - lo <= 1.0, (lo, hi)
+    lag = next(h for h in report["headline"] if h["metric"] == "lag_s")
+    assert lag["outside"] and 0.75 <= lag["real"] <= 1.25
+
+
 def test_workers_are_forked_before_the_located_gaps_thread_starts(tmp_path):
     """A fork copies only the forking thread: a module the located gaps' thread is importing
     stays locked in the worker, which hangs at its first import of it (a self-check in the

@@ -45,7 +45,7 @@ import numpy as np
 from virtualgps.gap import effects as fx
 from virtualgps.gap.design import folds as make_folds
 from virtualgps.gap.fit import FLAT_MIN, Fitted, fit_final, fit_index, grid_options, pulled_past_cut
-from virtualgps.gap.simulator import FIT, HELD, Request, Simulator
+from virtualgps.gap.simulator import FIT, HELD, Request, Simulator, mean_per_metric
 from virtualgps.gap.where import pooled_tracking_disagreement
 from virtualgps.sky import systems
 
@@ -143,18 +143,12 @@ def try_candidates(sim: Simulator, cands: list[fx.Candidate], fold_tables: list[
             c, ov, [points[ci, f] for f in range(n_f)], per_fold(fold_tables, HELD),
             per_fold(with_t, HELD),
             per_fold(fold_tables, FIT), per_fold(with_t, FIT),
-            _mean_parts([sim.parts(fold_tables[f], HELD, folds[f]) for f in range(n_f)]),
-            _mean_parts([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)]),
-            _mean_parts([sim.moved_parts(with_t[f], fold_tables[f], HELD, folds[f])
-                         for f in range(n_f)]),
+            mean_per_metric([sim.parts(fold_tables[f], HELD, folds[f]) for f in range(n_f)]),
+            mean_per_metric([sim.parts(with_t[f], HELD, folds[f]) for f in range(n_f)]),
+            mean_per_metric([sim.moved_parts(with_t[f], fold_tables[f], HELD, folds[f])
+                             for f in range(n_f)]),
             past_cut=ci in past_cut))
     return out
-
-
-def _mean_parts(parts: list[dict[str, float]]) -> dict[str, float]:
-    """Mean distance per metric over the folds that assess it."""
-    names = sorted({m for p in parts for m in p})
-    return {m: float(np.mean([p[m] for p in parts if m in p])) for m in names}
 
 
 def mark_ties(tried: list[Tried]) -> list[list[Tried]]:

@@ -105,8 +105,8 @@ def _mean(x: list[float]) -> float:
     return sum(x) / len(x)
 
 
-def _mean_per_metric(per: list[dict[str, float]]) -> dict[str, float]:
-    """{metric: mean distance} over the units' {metric: distance} that assess it."""
+def mean_per_metric(per: list[dict[str, float]]) -> dict[str, float]:
+    """{metric: mean distance} over the units' (or folds') {metric: distance} that assess it."""
     names = sorted({m for p in per for m in p})
     return {m: _mean([p[m] for p in per if m in p]) for m in names}
 
@@ -420,7 +420,7 @@ class Simulator:
               ) -> dict[str, float]:
         """Mean distance per metric over the units that assess it."""
         key = self.key(table)
-        return _mean_per_metric([self._unit_gap(key, seed_set, u)[1] for u in units])
+        return mean_per_metric([self._unit_gap(key, seed_set, u)[1] for u in units])
 
     def moved_parts(self, table: dict[str, Any], before: dict[str, Any], seed_set: int,
                     units: Sequence[int]) -> dict[str, float]:
@@ -435,7 +435,7 @@ class Simulator:
             per.append(moved_parts(self.scores(table, seed_set, [u])[0].judged,
                                    self.scores(before, seed_set, [u])[0].judged,
                                    ref.judged if ref is not None else None))
-        return _mean_per_metric(per)
+        return mean_per_metric(per)
 
     def sky_bins(self, table: dict[str, Any], seed_set: int, units: Sequence[int]
                  ) -> np.ndarray:
