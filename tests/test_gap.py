@@ -639,6 +639,9 @@ def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):
     assert set(pair["accepted"][:2]) == {"cold_start", "latency"}, pair
     assert res["confusion"]["nothing@holux-m1000"] == {"nothing": 1}
     assert "  nothing@holux-m1000: right 1/1" in selfcheck.summary_lines(res)
+    # (no single-effect trial here: none to count, rather than "ranked first in 0 %")
+    assert selfcheck.summary_lines(res)[0].endswith("; no single-effect trials")
+    assert " %: no single-effect trials;" in (tmp_path / "report.html").read_text()
 
 
 def test_a_null_trial_takes_any_profile(tmp_path):

@@ -408,14 +408,17 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
     rows = [{"injected": n, **{f: conf[n].get(f, 0) for f in firsts}} for n in names]
     cal = selfcheck.get("null_calibration", {})
     summary = [{"label": k, **v} for k, v in selfcheck.get("summary", {}).items()]
+    first, other = selfcheck.get("share_ranked_first"), selfcheck.get("share_other_first")
+    singles = (f"a single injected effect ranked first in {_fmt(100 * first)} % of its trials, "
+               f"another effect in {_fmt(100 * (other or 0.0))} %"
+               if isinstance(first, int | float) and math.isfinite(first)
+               else "no single-effect trials")
     body = [
         "<h1>virtualgps gap --selfcheck</h1>",
         f"<p>{len(selfcheck.get('trials', []))} trials, right in "
-        f"{_fmt(100 * (selfcheck.get('share_success') or 0.0))} %: a single injected effect "
-        f"ranked first in {_fmt(100 * (selfcheck.get('share_ranked_first') or 0.0))} % of its "
-        f"trials, another effect in {_fmt(100 * (selfcheck.get('share_other_first') or 0.0))} "
-        "%; a null trial (a log made by the profile under test) is right when nothing is "
-        "added; a pair when both effects are the first added.</p>",
+        f"{_fmt(100 * (selfcheck.get('share_success') or 0.0))} %: {singles}; a null trial (a "
+        "log made by the profile under test) is right when nothing is added; a pair when both "
+        "effects are the first added.</p>",
         f"<p>Under the null: {cal.get('reports_with_any_row_outside', 0)} of "
         f"{cal.get('reports', 0)} reports show any located gap "
         f"({cal.get('rows_outside', 0)} of {cal.get('rows', 0)} rows; nominal: "
