@@ -95,9 +95,11 @@ def main() -> None:
     result = json.loads(args.selfcheck_json.read_text(encoding="utf-8"))
     n = len(result["trials"])
     cal = result["null_calibration"]
-    print(f"{n} trials, right in {100 * result['share_success']:.0f} %; a single injected "
-          f"effect ranked first in {100 * (result['share_ranked_first'] or 0):.0f} % (another "
-          f"effect {100 * (result['share_other_first'] or 0):.0f} %)")
+    first = result["share_ranked_first"]  # (None where no trial injected a single effect)
+    print(f"{n} trials, right in {100 * result['share_success']:.0f} %; " + (
+        f"a single injected effect ranked first in {100 * first:.0f} % (another effect "
+        f"{100 * (result['share_other_first'] or 0):.0f} %)" if first is not None
+        else "no single-effect trials"))
     if cal["reports"]:
         lo, hi = cal["report_share_interval"]
         print(f"null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports with any "
