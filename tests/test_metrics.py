@@ -301,6 +301,24 @@ def test_nmea_epochs_grouping_partial_gsv_and_corrupt_lines():
     assert math.isnan(e.lat_deg[0]) and e.hdop[1] == 1.5 and e.pdop[1] == 2.1
 
 
+def test_a_dual_band_receivers_gsv_lists_count_each_satellite_once():
+    """NMEA 4.11 GSV per signal (a u-blox F9P: GPS L1 C/A, ID 1, then L2 CL, ID 6; each list
+    numbered 1..N of its own): in view is the larger list's count per talker, summed over
+    talkers, and the epoch's GSV is complete; a satellite's C/N0 is its first signal's."""
+    e = nmea_epochs_from_lines(_nmea(
+        "GNGGA,120000.00,4459.0085,N,09314.6412,W,1,05,1.10,268.4,M,-31.9,M,,",
+        "GNRMC,120000.00,A,4459.0085,N,09314.6412,W,0.0,,150323,,,A,V",
+        "GPGSV,2,1,05,02,60,010,45,05,40,100,42,12,30,200,40,25,20,300,38,1",
+        "GPGSV,2,2,05,29,10,350,33,1",
+        "GPGSV,1,1,03,02,60,010,39,05,40,100,36,12,30,200,31,6",
+        "GLGSV,1,1,02,65,50,120,41,66,25,220,37,1",
+        "GLGSV,1,1,02,65,50,120,35,66,25,220,30,3",
+    ))
+    assert list(e.sats_in_view) == [7] and list(e.gsv_complete) == [True]
+    assert list(e.prn) == [2, 5, 12, 25, 29, 65, 66]
+    assert e.in_view.sum() == 7 and e.cn0_dbhz[0, 0] == 45.0 and e.cn0_dbhz[0, 5] == 41.0
+
+
 def test_mtk_logger_csv(tmp_path):
     p = tmp_path / "log.csv"
     p.write_text(

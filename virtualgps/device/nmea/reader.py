@@ -160,7 +160,7 @@ class _Epoch:
 
     __slots__ = (
         "tod", "line", "days", "days_void", "gga", "rmc", "latlon", "mode", "pdop", "hdop_gsa",
-        "vdop", "gsa_prns", "n_view", "gsv_total", "gsv_seen", "sats",
+        "vdop", "gsa_prns", "view_by_group", "gsv_total", "gsv_seen", "sats",
     )  # fmt: skip
 
     def __init__(self, tod: float, line: int) -> None:
@@ -176,10 +176,20 @@ class _Epoch:
         self.mode = 0
         self.pdop = self.hdop_gsa = self.vdop = math.nan
         self.gsa_prns: set[int] | None = None
-        self.n_view = -1
+        self.view_by_group: dict[tuple[str, str], int] = {}  # (talker, signal) -> in view
         self.gsv_total = 0
-        self.gsv_seen: set[tuple[str, int]] = set()
+        self.gsv_seen: set[tuple[str, str, int]] = set()
         self.sats: dict[int, tuple[float, float, float]] = {}  # prn -> (el, az, snr)
+
+
+def _in_view(e: _Epoch) -> int:
+    """GSV's "satellites in view" of an epoch: summed over talkers (GP, GL, ...), each talker's
+    the largest of its signals' lists (L1 lists every satellite in view, L5 those that send it);
+    -1 without GSV."""
+    best: dict[str, int] = {}
+    for (talker, _), n in e.view_by_group.items():
+        best[talker] = max(best.get(talker, 0), n)
+    return sum(best.values()) if best else -1
 
 
 def _tod_s(field: str) -> float:
@@ -323,10 +333,13 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
                     cur.pdop, cur.hdop_gsa, cur.vdop = (_opt_float(x) for x in f[14:17])
             elif kind == "GSV" and len(f) >= 3:
                 total, num, n_view = int(f[0]), int(f[1]), int(f[2])
+                # NMEA 4.10+ ends a GSV with its signal ID: a dual-band receiver lists each
+                # talker's satellites once per signal, each list numbered 1..N of its own
+                group = (addr, f[-1] if (len(f) - 3) % 4 == 1 else "")
                 if num == 1:
-                    cur.n_view = n_view if cur.gsv_total == 0 else cur.n_view + n_view
+                    cur.view_by_group[group] = n_view
                     cur.gsv_total += total
-                cur.gsv_seen.add((addr, num))
+                cur.gsv_seen.add((*group, num))
                 sys_gsv = _TALKER_SYSTEM.get(addr[:2])
                 for j in range(3, len(f) - 3, 4):
                     if f[j]:
@@ -481,7 +494,7 @@ def nmea_epochs_from_lines(
         sats_used=np.where(n_gga >= 0, n_gga, n_gsa),
         sats_used_gga=n_gga,
         sats_used_gsa=n_gsa,
-        sats_in_view=arr((e.n_view for e in epochs), np.int64),
+        sats_in_view=arr((_in_view(e) for e in epochs), np.int64),
         gsv_complete=arr(
             (e.gsv_total > 0 and len(e.gsv_seen) == e.gsv_total for e in epochs), bool
         ),
