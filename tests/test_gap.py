@@ -648,9 +648,7 @@ def test_a_null_trial_takes_any_profile(tmp_path):
     """``nothing@PROFILE`` is the null of any profile (a name or a TOML path), in the four
     kinds of place; usarsim's in open sky. A path's trial is written under the work folder,
     its separators out of the file names."""
-    from virtualgps.gap import effects as fx
     from virtualgps.gap import synthetic
-    from virtualgps.receiver.profiles import load_profile_dict
     from virtualgps.sky.ephemeris import default_tle_path
 
     for name in ("ublox-m8n", "phone", "my/own.toml"):

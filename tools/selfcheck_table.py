@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtualgps.gap.selfcheck import summary_lines
+
 # The parameter shown per effect (the one its signature pins down), with its unit.
 MAIN_PARAM = {
     "correlated_error": ("tau_s", "s"), "cold_start": ("ttff_cold_s", "s"),
@@ -93,13 +95,8 @@ def main() -> None:
     ap.add_argument("selfcheck_json", type=Path)
     args = ap.parse_args()
     result = json.loads(args.selfcheck_json.read_text(encoding="utf-8"))
-    n = len(result["trials"])
     cal = result["null_calibration"]
-    first = result["share_ranked_first"]  # (None where no trial injected a single effect)
-    print(f"{n} trials, right in {100 * result['share_success']:.0f} %; " + (
-        f"a single injected effect ranked first in {100 * first:.0f} % (another effect "
-        f"{100 * (result['share_other_first'] or 0):.0f} %)" if first is not None
-        else "no single-effect trials"))
+    print(summary_lines(result)[0].removeprefix("self-check: "))
     if cal["reports"]:
         lo, hi = cal["report_share_interval"]
         print(f"null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports with any "
