@@ -616,6 +616,15 @@ def test_selfcheck_ranks_injected_effects_first(tmp_path):
     assert set(doc) >= {"trials", "confusion", "null_calibration"}
     assert doc["confusion"]["latency"] == {"latency": 1}
     assert (tmp_path / "report.html").stat().st_size > 10_000
+    # whether the outer test confirmed what each trial added, counted for right and wrong trials
+    for t in res["trials"]:
+        lo = t["outer_interval"][0]
+        assert t["outer_confirmed"] == (None if not math.isfinite(lo) else lo > 0), t
+    judged = [t for t in res["trials"] if t["outer_confirmed"] is not None]
+    assert doc["outer_confirmation"]["right"] == {
+        "trials": len(judged), "confirmed": sum(t["outer_confirmed"] for t in judged)}
+    assert any(x.startswith("  outer test confirms what was added in ")
+               for x in selfcheck.summary_lines(res))
 
 
 def test_selfcheck_null_adds_nothing_and_a_pair_adds_both(tmp_path):

@@ -1131,5 +1131,48 @@ def test_an_effect_seen_once_is_not_claimed_by_the_outer_test():
     outer[1]["units"] = [1, 5]
     steps[1]["_shows_in"] = [0, 5]
     assert diagnose.not_judged(steps, outer) == []
-    (note,) = report.not_judged_notes({"not_judged": blind})
+    (note,) = report.outer_notes({"not_judged": blind}, ["correlated_error", "cold_start"])
     assert "cannot judge cold_start" in note and "time block 1/4" in note
+
+
+def test_the_outer_test_says_when_it_does_not_confirm_what_was_added():
+    """The outer test's reduction with its t interval over the groups: where the interval
+    reaches 0 the terminal and the page say the added effects are not confirmed, with what the
+    groups chose; where it lies above 0, or every added effect is one the outer test cannot
+    judge, nothing is said; one group gives no interval and no verdict."""
+    from scipy import stats
+
+    from virtualgps.gap import diagnose, report
+
+    def choice(before, after, chose):
+        full = select.Selection(steps=[], ranking=[], skipped={}, baseline=math.nan,
+                                final=math.nan, final_table={}, fold_tables=[], folds=[])
+        return diagnose.Choice(full, [{"heldout": f"time block {k + 1}", "units": [k],
+                                       "effects": c, "gap_before": b, "gap_after": a}
+                                      for k, (b, a, c) in enumerate(zip(before, after, chose))])
+
+    before = [2.0, 1.8, 2.4, 1.9]
+    mixed = choice(before, [1.2, 2.1, 1.6, 2.2],
+                   [["dop_error"], ["cn0_tracking"], ["dop_error", "cn0_tracking"], []])
+    out = mixed.outer_summary()
+    d = np.array(before) - [1.2, 2.1, 1.6, 2.2]
+    half = stats.t.ppf(0.975, 3) * d.std(ddof=1) / 2.0  # (closed form: scipy's t quantile)
+    assert out["reduction"] == pytest.approx(d.mean())
+    assert out["interval"] == pytest.approx([d.mean() - half, d.mean() + half])
+    assert out["interval"][0] < 0 < out["interval"][1] and out["confirmed"] is False
+    (note,) = report.outer_notes({**out, "folds": mixed.outer}, ["dop_error"])
+    assert note.startswith("the outer test does not confirm dop_error: ")
+    assert "(dop_error in 2, cn0_tracking in 2, nothing in 1)" in note
+    assert "treat it as a candidate" in note
+    # an effect the outer test cannot judge has its own note, not this one
+    blind = {**out, "not_judged": [{"effect": "cold_start", "shows_in": ["time block 1"]}]}
+    (note,) = report.outer_notes(blind, ["cold_start"])
+    assert "cannot judge cold_start" in note
+    # every group's choice helps it: confirmed, nothing to say
+    clear = choice(before, [1.1, 1.0, 1.5, 1.2], [["dop_error"]] * 4).outer_summary()
+    assert clear["confirmed"] is True and clear["interval"][0] > 0
+    assert report.outer_notes(clear, ["dop_error"]) == []
+    # one group: a reduction but no interval and no verdict
+    one = choice(before[:1], [1.1], [["dop_error"]]).outer_summary()
+    assert one["confirmed"] is None and math.isnan(one["interval"][0])
+    assert report.outer_notes(one, ["dop_error"]) == []

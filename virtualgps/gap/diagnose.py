@@ -77,12 +77,14 @@ class Choice:
 
     def outer_summary(self) -> dict:
         """The outer test: the mean held-out gap before and after over the outer groups, the
-        reduction with a 95 % t interval over them (NaN without an outer test)."""
+        reduction with a 95 % t interval over them (NaN without an outer test), and whether
+        that interval lies above 0 (``confirmed``; None without an interval: one group)."""
         before = np.array([o["gap_before"] for o in self.outer], dtype=float)
         after = np.array([o["gap_after"] for o in self.outer], dtype=float)
         ok = np.isfinite(before) & np.isfinite(after)
         out = {"gap_before": math.nan, "gap_after": math.nan, "reduction": math.nan,
-               "interval": [math.nan, math.nan], "groups": int(ok.sum()), "not_judged": []}
+               "interval": [math.nan, math.nan], "confirmed": None, "groups": int(ok.sum()),
+               "not_judged": []}
         if not ok.any():
             return out
         d = before[ok] - after[ok]
@@ -92,6 +94,7 @@ class Choice:
             half = float(special.stdtrit(d.size - 1, 0.975)) * float(np.std(d, ddof=1)) \
                 / math.sqrt(d.size)
             out["interval"] = [float(d.mean() - half), float(d.mean() + half)]
+            out["confirmed"] = bool(out["interval"][0] > 0.0)
         out["not_judged"] = not_judged(self.full.steps, self.outer)
         return out
 

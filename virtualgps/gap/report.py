@@ -9,6 +9,7 @@ import base64
 import html
 import json
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,13 +77,42 @@ p.note { font-size: 0.9em; color: #444; max-width: 60em; }
 """
 
 
-def not_judged_notes(outer: dict) -> list[str]:
-    """One sentence per added effect the outer test cannot judge (``outer.not_judged``)."""
-    return [f"the outer test cannot judge {n['effect']}: it shows only in "
-            f"{'; '.join(n['shows_in'])}, and the choice made without that data did not add "
-            f"it (seen once, it cannot be both chosen and held out); its held-out gain comes "
-            f"from the inner folds alone, and logs that show it more than once would let the "
-            f"outer test judge it" for n in outer.get("not_judged", [])]
+def outer_notes(outer: dict, added: list[str]) -> list[str]:
+    """What the outer test cannot vouch for, one sentence each: every added effect it cannot
+    judge (``outer.not_judged``), and, where its reduction's 95 % interval reaches 0 or below
+    (``outer.confirmed`` false) for effects it could judge, that it does not confirm them.
+
+    outer : the report's ``outer`` (``folds``: each group's choice, where given)
+    added : the names of the effects the full selection added
+    """
+    blind = [n["effect"] for n in outer.get("not_judged", [])]
+    notes = [f"the outer test cannot judge {n['effect']}: it shows only in "
+             f"{'; '.join(n['shows_in'])}, and the choice made without that data did not add "
+             f"it (seen once, it cannot be both chosen and held out); its held-out gain comes "
+             f"from the inner folds alone, and logs that show it more than once would let the "
+             f"outer test judge it" for n in outer.get("not_judged", [])]
+    judged = [n for n in added if n not in blind]
+    if judged and outer.get("confirmed") is False:
+        lo, hi = outer["interval"]
+        folds = outer.get("folds", [])
+        why = ""
+        if len({tuple(sorted(f["effects"])) for f in folds}) > 1:
+            chosen = Counter(n for f in folds for n in f["effects"])
+            said = [f"{n} in {k}" for n, k in chosen.most_common()]
+            said += [f"nothing in {k}"] if (k := sum(not f["effects"] for f in folds)) else []
+            why = f", and the {len(folds)} outer groups chose differently ({', '.join(said)})"
+        notes.append(f"the outer test does not confirm {', '.join(judged)}: on data that "
+                     f"neither the choice nor the fit saw the gap fell by "
+                     f"{outer['reduction']:.3f} (95 %: {lo:.3f} to {hi:.3f}), not clearly "
+                     f"above 0{why}: treat "
+                     + ("it as a candidate" if len(judged) == 1 else "them as candidates")
+                     + " to check on more data, not as findings")
+    return notes
+
+
+def added_effects(report: dict) -> list[str]:
+    """The names of the effects a report's full selection added, in order."""
+    return [e["name"] for e in report.get("effects", []) if e.get("accepted")]
 
 
 def _jsonable(x: Any) -> Any:
@@ -335,7 +365,8 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
     else:
         held = (f"Gap score of the profile under test: <b>{_fmt(report.get('gap_baseline'))}"
                 "</b>. No held-out test of effects was possible.")
-    held += "".join(f" {html.escape(n[0].upper() + n[1:])}." for n in not_judged_notes(outer))
+    held += "".join(f" {html.escape(n[0].upper() + n[1:])}."
+                    for n in outer_notes(outer, added_effects(report)))
     warnings = "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>"
                        for w in design.get("warnings", []))
     warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "
@@ -428,6 +459,11 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
            f"{held['reports_with_any_row_outside']} of {held['reports']} such reports show a "
            f"located gap ({held['rows_outside']} of {held['rows']} rows).</p>"]
           if (held := cal.get("seed_holdout") or {}).get("reports") else []),
+        *([f"<p>The outer test (its reduction's 95 % interval above 0) confirmed what was "
+           f"added in {oc['right']['confirmed']} of {oc['right']['trials']} right trials and "
+           f"{oc['wrong']['confirmed']} of {oc['wrong']['trials']} wrong ones (trials that "
+           "added an effect it can judge).</p>"]
+          if (oc := selfcheck.get("outer_confirmation")) else []),
         _figure("confusion", plot.fig_confusion(names, firsts, counts),
                 "confusion matrix: injected x ranked first ('nothing': no effect added)")
         if names else "",
@@ -438,7 +474,8 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
         _table(selfcheck.get("trials", []), ["injected", "scenario", "params", "ranked_first",
                                              "accepted", "recovered", "recovered_interval",
                                              "covered", "gap_before", "gap_after",
-                                             "outer_not_judged", "where_outside"]),
+                                             "outer_confirmed", "outer_not_judged",
+                                             "where_outside"]),
     ]
     if selfcheck.get("real_bases_note"):
         body.append(f"<p>{html.escape(selfcheck['real_bases_note'])}</p>")

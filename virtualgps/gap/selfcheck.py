@@ -167,6 +167,7 @@ def summarise(rows: list[dict], opts: dg.Options) -> dict:
     }
     return {
         "trials": rows,
+        "outer_confirmation": _outer_confirmation(rows),
         "confusion": _confusion(rows, "ranked_first"),
         "confusion_added_first": _confusion(rows, "added_first"),
         "summary": summary,
@@ -178,6 +179,19 @@ def summarise(rows: list[dict], opts: dg.Options) -> dict:
                                   for r in single) / len(single) if single else math.nan),
         "seeds": opts.seeds, "fit_seeds": opts.n_fit,
     }
+
+
+def _outer_confirmation(rows: list[dict]) -> dict:
+    """How often the outer test confirmed what a trial's diagnosis added (its reduction's 95 %
+    interval above 0), apart for the right and the wrong trials: over the trials that added an
+    effect the outer test can judge and that had an interval (two outer groups or more)."""
+    out = {}
+    for name, right in (("right", True), ("wrong", False)):
+        mine = [r for r in rows if bool(r["success"]) == right
+                and r.get("outer_confirmed") is not None
+                and set(r["accepted"]) - set(r.get("outer_not_judged", []))]
+        out[name] = {"trials": len(mine), "confirmed": sum(r["outer_confirmed"] for r in mine)}
+    return out
 
 
 def _confusion(rows: list[dict], key: str) -> dict[str, dict[str, int]]:
@@ -208,6 +222,10 @@ def summary_lines(result: dict) -> list[str]:
         lines.append(f"  seeds held out in turn: {held['reports_with_any_row_outside']}/"
                      f"{held['reports']} reports with a located gap "
                      f"({held['rows_outside']}/{held['rows']} rows)")
+    if oc := result.get("outer_confirmation"):
+        lines.append(f"  outer test confirms what was added in {oc['right']['confirmed']}/"
+                     f"{oc['right']['trials']} right trials, {oc['wrong']['confirmed']}/"
+                     f"{oc['wrong']['trials']} wrong ones")
     for label, s in result["summary"].items():
         # (what was ranked first that the trials did not inject: a real base's label is not an
         # effect's name, and either effect of a pair may come first)

@@ -38,7 +38,6 @@ from virtualgps import geodesy
 from virtualgps.device.nmea import nmea_checksum, read_text_lines
 from virtualgps.gap import diagnose as dg
 from virtualgps.gap import effects as fx
-from virtualgps.gap.bands import holdout_counts
 from virtualgps.gap.ingest import read_real_log
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose
@@ -324,15 +323,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
                 "recovered": recovered,
                 "recovered_interval": ({} if effect == "truth_offset" else intervals),
                 "covered": {} if effect == "truth_offset" else cov,
-                "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
-                "outer_reduction": (report.get("outer") or {}).get("reduction"),
-                "outer_interval": (report.get("outer") or {}).get("interval"),
-                "outer_not_judged": [n["effect"] for n in
-                                     (report.get("outer") or {}).get("not_judged", [])],
-                "where_rows": len(report["where"]),
-                "where_outside": sum(w["outside"] for w in report["where"]),
-                "seed_holdout": holdout_counts(report["band"]),
-                "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
+                **synthetic.report_fields(report),
                 "real": str(real if effect == "truth_offset" else path),
                 "truth": str(tpath if effect == "truth_offset" else truth),
             })

@@ -401,14 +401,12 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
                                      if not e.get("accepted")]
     params, intervals, grids = recovered(effects, report)
     injected = _flat(trial.injected)
-    where = report["where"]
     if kind == "null":
         success = ranked[0] == NOTHING
     elif kind == "pair":
         success = set(accepted[:len(effects)]) == set(effects)
     else:
         success = ranked[0] == effects[0]
-    outer = report.get("outer") or {}
     return {
         "injected": trial.label, "kind": kind, "effects": list(effects),
         "scenario": trial.scenario, "params": injected, "ranked": ranked,
@@ -417,11 +415,23 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
         "alternative": (report.get("alternative") or {}).get("effects"),
         "recovered": params, "recovered_interval": intervals,
         "covered": covered(injected, intervals, grids),
+        **report_fields(report), "real": str(trial.real), "truth": trial.truth,
+    }
+
+
+def report_fields(report: dict) -> dict:
+    """What every self-check trial records of its diagnosis's report: the outer test's gaps,
+    reduction, interval and verdict (``outer_confirmed``: its interval above 0, None with one
+    group) and the effects it cannot judge, the located-gap rows, the seed holdout and the
+    causes applied."""
+    outer = report.get("outer") or {}
+    where = report["where"]
+    return {
         "gap_before": report["gap_baseline"], "gap_after": report["gap_final"],
         "outer_reduction": outer.get("reduction"), "outer_interval": outer.get("interval"),
+        "outer_confirmed": outer.get("confirmed"),
         "outer_not_judged": [n["effect"] for n in outer.get("not_judged", [])],
         "where_rows": len(where), "where_outside": sum(w["outside"] for w in where),
         "seed_holdout": holdout_counts(report["band"]),
         "causes": [c["name"] for c in report.get("causes", []) if c.get("applied")],
-        "real": str(trial.real), "truth": trial.truth,
     }

@@ -29,7 +29,7 @@ from virtualgps.gap.ingest import ingest_notes
 from virtualgps.gap.jobs import ModelThread, modelling, start_workers, unshare
 from virtualgps.gap.metrics import autocorrelation, to_regular_grid
 from virtualgps.gap.observed import Obs, RunView
-from virtualgps.gap.report import not_judged_notes
+from virtualgps.gap.report import added_effects, outer_notes
 from virtualgps.gap.runs import prepare_runs, sim_obs
 from virtualgps.gap.simulator import HELD, Simulator, ensembles, share_runs
 from virtualgps.gap.where import autocorr_time_s, errors_enu, tracked_fractions
@@ -611,12 +611,16 @@ def summary_lines(report: dict, top: int = 5) -> list[str]:
     outer = report.get("outer") or {}
     scheme = report["design"]["scheme"]
     if report["effects"] and outer.get("groups"):
+        lo, hi = outer.get("interval") or (math.nan, math.nan)
         lines.append(f"profile {report['profile']}: held-out gap {report['gap_baseline']:.3f} "
-                     f"-> {report['gap_final']:.3f} on data neither the choice nor the fit saw "
-                     f"({outer['groups']} outer groups; {scheme})")
+                     f"-> {report['gap_final']:.3f}"
+                     + (f" (reduction {outer['reduction']:.3f}, 95 %: {lo:.3f} to {hi:.3f})"
+                        if lo is not None and math.isfinite(lo) else "")
+                     + f" on data neither the choice nor the fit saw ({outer['groups']} outer "
+                       f"groups; {scheme})")
     else:
         lines.append(f"profile {report['profile']}: gap {_num(report['gap_baseline'])}")
-    lines += [f"  note: {n}" for n in not_judged_notes(outer)]
+    lines += [f"  note: {n}" for n in outer_notes(outer, added_effects(report))]
     lines += [f"  warning: {w}" for w in report["design"]["warnings"]]
     if note := holdout_warning(report.get("band", {})):
         lines.append(f"  warning: {note}")
