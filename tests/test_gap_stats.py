@@ -1147,9 +1147,10 @@ def test_the_outer_test_says_when_it_does_not_confirm_what_was_added():
     def choice(before, after, chose):
         full = select.Selection(steps=[], ranking=[], skipped={}, baseline=math.nan,
                                 final=math.nan, final_table={}, fold_tables=[], folds=[])
+        groups = zip(before, after, chose, strict=True)
         return diagnose.Choice(full, [{"heldout": f"time block {k + 1}", "units": [k],
                                        "effects": c, "gap_before": b, "gap_after": a}
-                                      for k, (b, a, c) in enumerate(zip(before, after, chose))])
+                                      for k, (b, a, c) in enumerate(groups)])
 
     before = [2.0, 1.8, 2.4, 1.9]
     mixed = choice(before, [1.2, 2.1, 1.6, 2.2],

@@ -1,0 +1,310 @@
+"""Reading real receiver logs and their truths for the gap tool: what real logs hold (noise,
+bad checksums, clocks not yet set, logs without dates or GGA), truth specs, and a log-vs-truth
+clock offset found or said."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from virtualgps.gap import effects as fx
+from virtualgps.gap import where
+from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
+from virtualgps.poses.pose import PoseTrack
+from virtualgps.receiver.profiles import build_profile
+
+
+@pytest.fixture(autouse=True)
+def stop_workers():
+    """Local worker pools live for the process; a test ends with none (no leaked pipes)."""
+    yield
+    from virtualgps.gap import jobs
+
+    jobs.shutdown()
+
+
+def sentence(body: str) -> str:
+    """One NMEA sentence with its checksum from its body (no ``$``, no ``*``)."""
+    from virtualgps.device.nmea import nmea_checksum
+
+    return f"${body}*{nmea_checksum(body)}"
+
+
+def test_ingest_survives_what_real_logs_hold(tmp_path):
+    lines = [
+        "\x00\x8a\x13binary noise",
+        sentence("GPGGA,235958.000,5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"),
+        sentence("GPRMC,235958.000,A,5207.0000,N,01138.0000,E,0.0,0.0,281117,,,A"),
+        "2:52:16:587 Nachm. 03/28/17 - " + sentence("GPGSV,1,1,02,05,40,100,35,07,20,200,"),
+        sentence("GLGSV,1,1,01,70,30,90,30"),
+        sentence("GNGSA,A,3,05,07,,,,,,,,,,,1.5,0.9,1.2"),
+        "$GPGGA,235959.000,5207.0001,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,*00",  # checksum
+        "$GPGGA,235959.000,5207.00",  # truncated
+        sentence("GPGGA,000001.000,5207.0002,N,01138.0000,E,7,08,0.9,50.0,M,44.0,M,,"),
+        sentence("GPGGA,000001.000,5207.0002,N,01138.0000,E,7,08,0.9,50.0,M,44.0,M,,"),
+        sentence("PMTK010,001"),
+    ]
+    p = tmp_path / "log.nmea"
+    p.write_bytes("\r\n".join(lines).encode("latin-1"))
+    ep, skipped, sentences, dated_by = read_real_log(p)
+    assert len(ep) == 2
+    assert ep.t_unix_s[1] - ep.t_unix_s[0] == pytest.approx(3.0)  # across midnight
+    assert list(ep.quality) == [1, 7]
+    assert skipped["bad_checksum"] == 1 and skipped["truncated"] == 1
+    assert skipped["not_nmea"] == 1 and skipped["not_used"] == 1
+    assert sentences["GSV"] == 2 and sentences["GGA"] == 3 and dated_by == "log"
+    run = load_run(p, "static:52.1166,11.6333,94")
+    assert run.has_gsv and run.has_cn0 and run.has_gsa and run.quality_codes == {1: 1, 7: 1}
+
+
+def test_epochs_before_a_receivers_clock_is_set_are_left_out(shared_data, tmp_path):
+    """mtk-3301.log counts from its RTC's 23:59:46 (dated 050180) until its first fix at
+    08:14:36: those five epochs, hours from every fix, are left out and counted; the two
+    epochs just before the first fix stay (a start-up). A log whose fixes span weeks is one
+    clear error, not a time grid that fills the memory."""
+    from datetime import UTC, datetime
+
+    from virtualgps.exceptions import InputFileError
+
+    ep, skipped, *_ = read_real_log(shared_data / "gpsd-mtk" / "mtk-3301.log")
+    assert skipped["epochs_clock_not_set"] == 5
+    assert datetime.fromtimestamp(ep.t_unix_s[0], UTC) == datetime(2008, 8, 23, 8, 14, 33,
+                                                                    591000, tzinfo=UTC)
+    assert list(ep.quality) == [0, 0, 1, 1, 1, 1]
+    fix = "GPGGA,{},5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"
+    weeks = [sentence(fix.format("120000.000")),
+             sentence("GPRMC,120000.000,A,5207.0000,N,01138.0000,E,0.0,0.0,010318,,,A"),
+             sentence(fix.format("120001.000")),
+             sentence("GPRMC,120001.000,A,5207.0000,N,01138.0000,E,0.0,0.0,150318,,,A")]
+    p = tmp_path / "weeks.nmea"
+    p.write_text("\n".join(weeks) + "\n")
+    with pytest.raises(InputFileError, match="span 14 days"):
+        read_real_log(p)
+
+
+def test_a_log_without_dates_is_dated_by_its_truth(tmp_path):
+    """A GGA-only log (no RMC or ZDA) takes the date of its truth's times: on the day that puts
+    its first epoch nearest the truth's first pose (here the day before the truth's date, the
+    log starting just before midnight), rolling past the midnight it crosses. With a static
+    truth nothing can date it: one clear error."""
+    from datetime import UTC, datetime
+
+    from virtualgps.exceptions import InputFileError
+
+    fix = "GPGGA,{},5207.0000,N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,"
+    p = tmp_path / "gga.nmea"
+    p.write_text("".join(sentence(fix.format(t)) + "\n"
+                         for t in ("235958.000", "235959.000", "000000.000", "000001.000")))
+    t0 = datetime(2018, 3, 1, 23, 59, 58, tzinfo=UTC).timestamp()
+    truth = tmp_path / "truth.csv"
+    truth.write_text("t,lat,lon,alt\n" + "".join(
+        f"{t0 + k - 1.0},52.1166,11.6333,94\n" for k in range(6)))
+    run = load_run(p, str(truth))
+    assert run.dated_by == "truth"
+    assert list(run.epochs.t_unix_s - t0) == [0.0, 1.0, 2.0, 3.0]
+    ep, _, _, dated_by = read_real_log(p, near_unix_s=t0 + 86400.0 + 7200.0)
+    assert dated_by == "truth" and ep.t_unix_s[0] == t0 + 86400.0
+    with pytest.raises(InputFileError, match=r"no RMC or ZDA .*\(--truth static cannot\)"):
+        load_run(p, "static")
+
+
+def test_a_log_of_rmc_alone_has_fixes_and_says_what_it_cannot_assess(tmp_path):
+    """Without GGA, an RMC position with status A is a fix (quality 1); a void RMC is none.
+    Altitude and fix quality are then unknown: the vertical scatter and the DGPS share are
+    listed as not assessed, not compared as zeros."""
+    from types import SimpleNamespace
+
+    from virtualgps.gap.diagnose import not_assessed
+
+    rmc = "GPRMC,12000{},{},5207.0000,N,01138.0000,E,0.0,0.0,010318,,,A"
+    p = tmp_path / "rmc.nmea"
+    p.write_text("".join(sentence(rmc.format(k, "A" if k else "V")) + "\n" for k in range(4)))
+    ep, _, sentences, _ = read_real_log(p)
+    assert list(ep.quality) == [0, 1, 1, 1] and sentences == {"RMC": 4}
+    view = SimpleNamespace(assess={"gsv": True, "cn0": True, "gsa": True, "gga": False},
+                           real=SimpleNamespace(sats_used=np.ones((1, 4)), hdop=np.ones(4)),
+                           reference="truth", speed_mps=np.zeros(4))
+    reasons = {n["metric"]: n["reason"]
+               for n in not_assessed([SimpleNamespace(view=view, info={})])}
+    assert set(reasons) == {"up_p68_m", "dgps_fraction", "lag_s"}
+    assert reasons["dgps_fraction"].startswith("no GGA")
+
+
+def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
+    """A log whose clock runs 30 s behind its truth's is matched at ingest (estimate_time_offset_s)
+    and judged after; the terminal and the page say that it was, not only the lag that
+    remains (GSDC's SPAN truth moved 30 s: -29.99 s found)."""
+    from virtualgps.gap import report as rp
+    from virtualgps.gap import tool
+
+    clock = {"name": "time_offset", "kind": "clock", "run": "drive", "lag_s": -0.015,
+             "blocks": 9, "interval_s": [-0.03, 0.1], "ingest_best_s": -29.99,
+             "applied_s": -29.99, "what": "the fixes lag the truth by this much"}
+    report = {"headline": [], "outer": {}, "design": {"scheme": "", "warnings": []},
+              "runs": [], "effects": [], "located": [], "profile": "holux-m1000",
+              "gap_baseline": 1.0, "causes": [clock]}
+    said = "the clock of drive's log runs 29.99 s behind its truth's: taken out before judging"
+    assert f"  cause: {said}" in tool.summary_lines(report)
+    assert said in rp._cause_rows(report)[0]["what"]
+    # what no effect explained is named on the terminal too, each metric once
+    report["unexplained"] = [{"metric": "ttff_s", "segment": "all"},
+                             {"metric": "hdop_median", "segment": "all"},
+                             {"metric": "ttff_s", "segment": "startup"}]
+    assert tool.summary_lines(report)[-1] == (
+        "  unexplained (outside the final ensemble): ttff_s, hdop_median")
+    report["causes"] = [dict(clock, applied_s=0.0, lag_s=1.2)]
+    lines = tool.summary_lines(report)
+    assert not any("the clock of" in ln for ln in lines)
+    assert "  cause?: the fixes lag the truth of drive by 1.20 s: a clock offset or an output " \
+        "latency" in lines
+    # once the diagnosis has chosen, the lag is said as what it added reads it: a filter smooths
+    # the fixes too (a clock offset does not); a pure delay and a clock offset stay aliased
+    report["causes"][0]["read_as"] = ["nav_filter"]
+    assert "by 1.20 s: read as a navigation filter's lag" in "\n".join(tool.summary_lines(report))
+    assert "here read as a navigation filter's lag" in rp._cause_rows(report)[0]["what"]
+    report["causes"][0]["or_read_as"] = ["latency"]
+    assert "read as a navigation filter's lag: nav_filter was added, the fixes being smoothed " \
+        "as well, which a clock offset does not do (or as latency: an equally good " \
+        "explanation, see alternative)" in "\n".join(tool.summary_lines(report))
+    del report["causes"][0]["or_read_as"]
+    report["causes"][0]["read_as"] = ["latency"]
+    assert "read as an output latency (latency was added); a log-vs-truth clock offset of the " \
+        "same size moves the fixes alike" in "\n".join(tool.summary_lines(report))
+    # a velocity-aided filter follows the motion and smooths only the error: added, it reads
+    # no lag (the GSDC drive with a 0.3 s delay injected added one, and the lag stood unread)
+    from virtualgps.gap import causes as cz
+
+    aided = {"name": "nav_filter", "params": {"tau_s": 2.5, "velocity_aided": True}}
+    assert not cz.lags_motion(aided)
+    assert cz.lags_motion(dict(aided, params={"tau_s": 2.5, "velocity_aided": False}))
+    assert cz.lags_motion({"name": "latency", "params": {"latency_s": 0.4}})
+    report["causes"][0]["read_as"] = []
+    assert ("by 1.20 s: a clock offset or an output latency: no effect that lags the fixes "
+            "was added") in "\n".join(tool.summary_lines(report))
+
+
+def test_bad_truth_specs_are_clear_errors():
+    from virtualgps.exceptions import ConfigError
+
+    for spec in ("static:1,2", "static:95,0,0", "no/such/file.csv"):
+        with pytest.raises(ConfigError):
+            parse_truth(spec)
+    assert parse_truth("static:-33.86,151.21,50").lat_deg == -33.86
+
+
+def test_time_offset_recovered_on_a_moving_track():
+    rng = np.random.default_rng(5)
+    t = 1.6e9 + np.arange(600.0)
+    heading = 0.01 * t
+    lat = 37.4 + np.cumsum(10 * np.cos(heading)) / 111e3
+    lon = -122.1 + np.cumsum(10 * np.sin(heading)) / (111e3 * np.cos(np.radians(37.4)))
+    truth = PoseTrack(t, "geodetic", np.stack([lat, lon, np.zeros_like(t)], 1),
+                      np.full((600, 3), np.nan))
+    noise = rng.normal(0, 3.0 / 111e3, (2, 600))
+    # the real log's clock runs 7.7 s ahead of the truth's
+    real_lat = np.interp(t - 7.7, t, lat) + noise[0]
+    real_lon = np.interp(t - 7.7, t, lon) + noise[1]
+    off, info = estimate_time_offset_s(t, real_lat, real_lon, truth)
+    assert info["applied"] and off == pytest.approx(7.7, abs=0.2)
+    # lags of seconds are reported (they could be the receiver's latency or its navigation
+    # filter's lag), not applied
+    for lag in (1.2, 3.3):
+        off, info = estimate_time_offset_s(t, np.interp(t - lag, t, lat) + noise[0],
+                                           np.interp(t - lag, t, lon) + noise[1], truth)
+        assert off == 0.0 and not info["applied"]
+        assert info["best_s"] == pytest.approx(lag, abs=0.2)
+
+
+def test_a_clock_offset_beyond_the_first_window_is_found_or_said():
+    """The search widens while its best lies at the grid's end: 95 s is found (the first
+    window, +-30 s, ended at -29.99 s before and took that out); 900 s, beyond the widest
+    window, is not taken out, and the report says why."""
+    from virtualgps.gap.ingest import OFFSET_WINDOWS_S, ingest_notes
+
+    rng = np.random.default_rng(6)
+    n = 2400
+    t = 1.6e9 + np.arange(float(n))
+    heading = 0.6 * np.sin(t / 60.0)  # (a wavy road: no place passed twice)
+    lat = 37.4 + np.cumsum(10 * np.cos(heading)) / 111e3
+    lon = -122.1 + np.cumsum(10 * np.sin(heading)) / (111e3 * np.cos(np.radians(37.4)))
+    truth = PoseTrack(t, "geodetic", np.stack([lat, lon, np.zeros_like(t)], 1),
+                      np.full((n, 3), np.nan))
+    noise = rng.normal(0, 3.0 / 111e3, (2, n))
+    for shift, found in ((95.0, True), (900.0, False)):
+        real = slice(1000, 1900)  # the log: 15 minutes inside the truth's 40
+        off, info = estimate_time_offset_s(
+            t[real], np.interp(t[real] - shift, t, lat) + noise[0, real],
+            np.interp(t[real] - shift, t, lon) + noise[1, real], truth)
+        assert info["applied"] is found and info["at_edge"] is not found
+        if found:
+            assert off == pytest.approx(shift, abs=0.2)
+        else:
+            assert off == 0.0 and info["searched_s"][1] == OFFSET_WINDOWS_S[-1]
+            note = ingest_notes({"offset": info})[0]
+            assert "the end of the 600 s searched: no offset was taken out" in note
+
+
+def test_real_logs_load(shared_data):
+    mt = load_run(shared_data / "mt3339-static" / "hour_test_1.txt", "static")
+    assert mt.has_gsv and mt.skipped.get("not_nmea", 0) >= 1  # binary noise at the start
+    first_fix = mt.epochs.t_unix_s[np.argmax(mt.epochs.quality > 0)] - mt.epochs.t_unix_s[0]
+    assert 25.0 < first_fix < 40.0
+    d = shared_data / "gsdc-2020-05-14-mtv"
+    gs = load_run(d / "Pixel4_chipset.nmea", str(d / "SPAN_Pixel4_1Hz.nmea"))
+    assert not gs.has_gsv and not gs.has_gsa and gs.quality_codes == {7: len(gs.epochs)}
+    assert abs(gs.time_offset_s) < 2.0, gs.offset_info
+
+
+def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_data):
+    """The GSDC drive's SPAN truth drops out 31 times (quality 0 for 3-68 epochs). No epoch in
+    a gap is compared, but the simulated receiver runs on through those of up to
+    SIM_MAX_GAP_S on the straight line between the truth's ends, as the real one did: a
+    navigation filter carries its lag across (restarted after each gap, it lagged by nothing
+    at the first epochs after it, where a real filter lagged ~35 m); beyond, it has no
+    position. And an epoch after a gap has the truth's speed: it read 0 and counted as
+    stationary at 25 m/s."""
+    from virtualgps.gap import tool
+    from virtualgps.gap.ensemble import EnsembleJob, simulate_job
+    from virtualgps.gap.ingest import TRUTH_MAX_GAP_S
+    from virtualgps.gap.runs import SIM_MAX_GAP_S, prepare_runs, sim_obs
+
+    d = shared_data / "gsdc-2020-05-14-mtv"
+    inp = tool.GapInputs(real=(str(d / "Pixel4_chipset.nmea"),),
+                         truth=(str(d / "SPAN_Pixel4_1Hz.nmea"),), scene="none",
+                         tle=str(d / "gps-ops_2020-05-14T22Z.tle"), profile="holux-m1000")
+    runs_in, scene, scene_dir, tle, table, source = tool.load_inputs(inp)
+    run = prepare_runs(runs_in, scene, scene_dir, tle, build_profile(table, source),
+                       lambda t0: 0.0, 1, None)[0]
+    setup, view = run.setup, run.view
+    t, valid = view.t_unix_s, view.valid
+    k = np.flatnonzero(valid)
+    gap = np.flatnonzero(np.diff(t[k]) > TRUTH_MAX_GAP_S)  # (the truth's own gaps)
+    before, after = k[gap], k[gap + 1]
+    bridged = t[after] - t[before] <= SIM_MAX_GAP_S
+    assert gap.size >= 25 and 15 <= bridged.sum() < gap.size
+    for b, a, br in zip(before, after, bridged, strict=True):
+        assert setup.pose_valid[b:a + 1].all() == br
+    # speeds: known at every compared epoch but one alone between gaps (unknown: in neither
+    # segment), and an epoch counts as stationary only where the truth's own steps about it
+    # are slow
+    speed, posed = view.speed_mps, setup.pose_valid
+    alone = posed & ~np.r_[False, posed[:-1]] & ~np.r_[posed[1:], False]
+    assert np.isfinite(speed[valid & ~alone]).all() and np.isnan(speed[alone]).all()
+    en = view.truth_en_m
+    step = np.full(t.size, np.nan)
+    step[k[1:]] = np.hypot(*np.diff(en[k], axis=0).T) / np.diff(t[k])
+    still = where.segments(view)["stationary"]
+    assert still.sum() > 30 and np.nanmax(step[still]) < 1.0
+    assert (speed[after] > 10.0).sum() >= 20
+    # a 2 s filter lags a steady v by v a / (1 - a) seconds at 1 Hz (a = e^-0.5): 1.54 s
+    nf = fx.apply(table, {"nav_filter": {"enabled": True, "tau_s": 2.0,
+                                         "velocity_aided": False}})
+    sims = sim_obs(simulate_job(EnsembleJob(setup, build_profile(nf, source), (0, 1, 2))),
+                   view)
+    err = np.hypot(*where.errors_enu(view, sims)[..., :2].transpose(2, 0, 1))
+    fast = bridged & (speed[after] > 10.0)
+    lag_m = speed[after[fast]] * math.exp(-0.5) / (1.0 - math.exp(-0.5))
+    assert fast.sum() >= 15
+    assert np.median(err[:, after[fast]] / lag_m) > 0.8, err[:, after[fast]] / lag_m
