@@ -105,8 +105,9 @@ def outer_notes(outer: dict, added: list[str]) -> list[str]:
                      f"neither the choice nor the fit saw the gap fell by "
                      f"{outer['reduction']:.3f} (95 %: {lo:.3f} to {hi:.3f}), not clearly "
                      f"above 0{why}: treat "
-                     + ("it as a candidate" if len(judged) == 1 else "them as candidates")
-                     + " to check on more data, not as findings")
+                     + ("it as a candidate to check on more data, not as a finding"
+                        if len(judged) == 1 else
+                        "them as candidates to check on more data, not as findings"))
     return notes
 
 
