@@ -201,6 +201,14 @@ def test_calibrated_profile_toml_round_trips(tmp_path):
     assert prof.latency.enabled and prof.latency.latency_s == 0.5
     assert prof.name == "holux-m1000-calibrated"
     assert tomllib.loads(p.read_text())["nmea"]["sentences"][0] == "GGA"
+    # what the outer test cannot vouch for heads the file as comments; it loads the same
+    note = ("the outer test does not confirm latency: on data that neither the choice nor the "
+            "fit saw the gap fell by -0.351 (95 %: -1.028 to 0.325), not clearly above 0")
+    dg.write_profile(table, "holux-m1000", [{"name": "latency"}], p, [note])
+    head = [x for x in p.read_text().splitlines() if x.startswith("#")]
+    assert len(head) >= 4 and all(len(x) <= 100 for x in head)
+    assert " ".join(x[2:] for x in head[2:]) == note[0].upper() + note[1:] + "."
+    assert load_profile(str(p)).latency.latency_s == 0.5
 
 
 def test_fit_keeps_the_default_without_evidence():

@@ -16,7 +16,8 @@ far it shrinks on data that neither the choice nor the fit saw.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Generator
+import textwrap
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -320,12 +321,17 @@ def public(entry: dict) -> dict:
     return {k: v for k, v in entry.items() if not k.startswith("_")}
 
 
-def write_profile(table: dict, base_name: str, steps: list[dict], path: Path) -> None:
-    """Write the calibrated profile TOML (``run``/``replay --profile PATH`` accept it)."""
+def write_profile(table: dict, base_name: str, steps: list[dict], path: Path,
+                  notes: Sequence[str] = ()) -> None:
+    """Write the calibrated profile TOML (``run``/``replay --profile PATH`` accept it), with
+    ``notes`` (sentences: what the outer test cannot vouch for) as comments at its head."""
     t = dict(table)
     t["name"] = f"{base_name}-calibrated"
     t["description"] = (f"{base_name} + " + ", ".join(s["name"] for s in steps)
                         if steps else f"{base_name} (no effect reduced the held-out gap)")
     head = ("# Made by `virtualgps gap`: the profile under test with the effects that reduced\n"
             "# the held-out gap, their parameters fitted on every run.\n")
+    for n in notes:
+        head += "".join(f"# {line}\n" for line in textwrap.wrap(
+            n[0].upper() + n[1:] + ".", 92))
     path.write_text(head + fx.to_toml(t), encoding="utf-8")

@@ -463,7 +463,8 @@ def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: st
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     steps = [e for e in report["effects"] if e.get("accepted")]
-    dg.write_profile(calibrated, profile_name, steps, out / "calibrated.toml")
+    dg.write_profile(calibrated, profile_name, steps, out / "calibrated.toml",
+                     outer_notes(report.get("outer") or {}, [s["name"] for s in steps]))
     report["calibrated_profile"] = "calibrated.toml"
     rp.write_json(report, out / "report.json")
     rp.write_html(report, figures, out / "report.html", jobs, dask)
