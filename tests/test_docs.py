@@ -89,3 +89,20 @@ def test_the_readme_links_to_pages_and_headings_that_exist():
         if anchor:
             slugs = {_slug(h) for h in re.findall(r"^#+ (.+)$", path.read_text(), re.M)}
             assert anchor in slugs, f"README: {page}#{anchor} names no heading there"
+
+
+def test_the_tests_and_tools_the_docs_cite_exist():
+    """Every ``tests/FILE.py::NAME`` the docs cite (a claim's evidence) names a test that is
+    there, and every ``tools/NAME.py`` is a file: a test moved or renamed takes its citations
+    with it (a citation may break across a line, as Markdown wraps it)."""
+    cited = tools = 0
+    for doc in DOC_FILES:
+        text = doc.read_text(encoding="utf-8")
+        for path, name in re.findall(r"(tests/test_\w+\.py)::\s*(\w+)", text):
+            assert re.search(rf"^def {name}\(", (REPO / path).read_text(), re.M), \
+                f"{doc.name}: {path}::{name} is no test there"
+            cited += 1
+        for path in set(re.findall(r"\btools/\w+\.(?:py|sh)\b", text)):
+            assert (REPO / path).is_file(), f"{doc.name}: {path} is no file"
+            tools += 1
+    assert cited >= 5 and tools >= 5, (cited, tools)
