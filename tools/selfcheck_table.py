@@ -7,8 +7,8 @@ was right, what it ranked first where it was wrong (``nothing``: no effect added
 parameter injected against recovered (medians, the median absolute error, and how often the
 recovered interval held the injected value), and the median outer-test shrinkage of the gap (1 -
 gap_after / gap_before; and in how many trials an added effect showed in data the outer test
-could not hold out from its choice, ``outer_not_judged``); then the band's calibration under the
-null.
+could not hold out from its choice, ``outer_not_judged``); how often the outer test confirmed
+what was added, for right and wrong trials; then the band's calibration under the null.
 """
 
 from __future__ import annotations
@@ -96,7 +96,10 @@ def main() -> None:
     args = ap.parse_args()
     result = json.loads(args.selfcheck_json.read_text(encoding="utf-8"))
     cal = result["null_calibration"]
-    print(summary_lines(result)[0].removeprefix("self-check: "))
+    lines = summary_lines(result)
+    print(lines[0].removeprefix("self-check: "))
+    print("".join(x.strip() + "\n" for x in lines if x.startswith("  outer test confirms")),
+          end="")
     if cal["reports"]:
         lo, hi = cal["report_share_interval"]
         print(f"null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports with any "
