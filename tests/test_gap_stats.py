@@ -754,6 +754,10 @@ def test_the_outer_test_says_when_it_does_not_confirm_what_was_added():
     (note,) = report.outer_notes({**out, "folds": mixed.outer}, ["dop_error"])
     assert note.startswith("the outer test does not confirm dop_error: ")
     assert "(dop_error in 2, cn0_tracking in 2, nothing in 1)" in note
+    assert f"the gap fell by {d.mean():.3f} (reduction 95 %: {out['interval'][0]:.3f} to " in note
+    worse = {**out, "reduction": -0.351, "interval": [-1.028, 0.325]}
+    assert "the gap grew by 0.351 (reduction 95 %: -1.028 to 0.325, not clearly above 0)" in \
+        report.outer_notes(worse, ["dop_error"])[0]
     assert note.endswith("treat it as a candidate to check on more data, not as a finding")
     two = report.outer_notes({**out, "folds": mixed.outer}, ["dop_error", "cn0_tracking"])
     assert two[0].startswith("the outer test does not confirm dop_error, cn0_tracking: ")

@@ -101,10 +101,11 @@ def outer_notes(outer: dict, added: list[str]) -> list[str]:
             said = [f"{n} in {k}" for n, k in chosen.most_common()]
             said += [f"nothing in {k}"] if (k := sum(not f["effects"] for f in folds)) else []
             why = f", and the {len(folds)} outer groups chose differently ({', '.join(said)})"
+        moved = (f"fell by {outer['reduction']:.3f}" if outer["reduction"] >= 0
+                 else f"grew by {-outer['reduction']:.3f}")
         notes.append(f"the outer test does not confirm {', '.join(judged)}: on data that "
-                     f"neither the choice nor the fit saw the gap fell by "
-                     f"{outer['reduction']:.3f} (95 %: {lo:.3f} to {hi:.3f}), not clearly "
-                     f"above 0{why}: treat "
+                     f"neither the choice nor the fit saw the gap {moved} (reduction 95 %: "
+                     f"{lo:.3f} to {hi:.3f}, not clearly above 0){why}: treat "
                      + ("it as a candidate to check on more data, not as a finding"
                         if len(judged) == 1 else
                         "them as candidates to check on more data, not as findings"))
