@@ -438,6 +438,12 @@ def test_mt3339_hour_names_correlated_error_and_cold_start(shared_data, tmp_path
     assert [n["effect"] for n in report["outer"]["not_judged"]] == ["cold_start"]
     assert report["outer"]["not_judged"][0]["shows_in"][0].startswith("time block 1/")
     assert "the outer test cannot judge cold_start" in r.stdout
+    # what it judges it confirms (the reduction's interval above 0): no such note; the page and
+    # the calibrated profile's head carry the one about cold_start
+    assert report["outer"]["confirmed"] is True and "does not confirm" not in r.stdout
+    assert "<p><b>Note:</b> The outer test cannot judge cold_start" in (
+        out / "report.html").read_text()
+    assert "# The outer test cannot judge cold_start" in (out / "calibrated.toml").read_text()
     # the bands checked on the seeds themselves: each of the 20 taken as the real log
     held = report["band"]["seed_holdout"]
     assert held["reports"] == 20 and 0 <= held["reports_with_any_row_outside"] <= 20

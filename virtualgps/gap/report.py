@@ -367,8 +367,9 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
     else:
         held = (f"Gap score of the profile under test: <b>{_fmt(report.get('gap_baseline'))}"
                 "</b>. No held-out test of effects was possible.")
-    held += "".join(f" {html.escape(n[0].upper() + n[1:])}."
-                    for n in outer_notes(outer, added_effects(report)))
+    # (each its own paragraph under the figure it qualifies: read in a minute, not missed)
+    held_notes = "".join(f"<p><b>Note:</b> {html.escape(n[0].upper() + n[1:])}.</p>"
+                         for n in outer_notes(outer, added_effects(report)))
     warnings = "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>"
                        for w in design.get("warnings", []))
     warnings += "".join(f"<p><b>Warning:</b> {html.escape(r['name'])}: "
@@ -383,7 +384,7 @@ def write_html(report: dict, data: GapFigureData, path: str | Path, jobs: int | 
         _table(_headline_rows(report), ["", "real", "simulated (median; 95 % band)",
                                         "calibrated", "gap"]),
         f"<p>{held} Calibrated profile: "
-        f"{html.escape(str(report.get('calibrated_profile', '')))}.</p>",
+        f"{html.escape(str(report.get('calibrated_profile', '')))}.</p>", held_notes,
         f"<p class=\"note\">{html.escape(SCORE_EXPLAINED)}</p>",
         "<h2>Causes that are not receiver effects</h2>",
         _table(_cause_rows(report), ["cause", "what"]),
