@@ -112,6 +112,17 @@ def outer_notes(outer: dict, added: list[str]) -> list[str]:
     return notes
 
 
+def single_effect_share(selfcheck: dict) -> str:
+    """How often a self-check's single injected effect was ranked first, in words (the terminal's
+    and the page's one rule): a run of null or pair trials only has none to count, not "0 %"."""
+    first, other = selfcheck.get("share_ranked_first"), selfcheck.get("share_other_first")
+    if not (isinstance(first, int | float) and math.isfinite(first)):
+        return "no single-effect trials"
+    other = other if isinstance(other, int | float) and math.isfinite(other) else 0.0
+    return (f"injected effect ranked first in {100 * first:.0f} % of single-effect trials "
+            f"(another effect in {100 * other:.0f} %)")
+
+
 def added_effects(report: dict) -> list[str]:
     """The names of the effects a report's full selection added, in order."""
     return [e["name"] for e in report.get("effects", []) if e.get("accepted")]
@@ -442,15 +453,11 @@ def write_selfcheck_html(selfcheck: dict, path: str | Path) -> None:
     rows = [{"injected": n, **{f: conf[n].get(f, 0) for f in firsts}} for n in names]
     cal = selfcheck.get("null_calibration", {})
     summary = [{"label": k, **v} for k, v in selfcheck.get("summary", {}).items()]
-    first, other = selfcheck.get("share_ranked_first"), selfcheck.get("share_other_first")
-    singles = (f"a single injected effect ranked first in {_fmt(100 * first)} % of its trials, "
-               f"another effect in {_fmt(100 * (other or 0.0))} %"
-               if isinstance(first, int | float) and math.isfinite(first)
-               else "no single-effect trials")
     body = [
         "<h1>virtualgps gap --selfcheck</h1>",
         f"<p>{len(selfcheck.get('trials', []))} trials, right in "
-        f"{_fmt(100 * (selfcheck.get('share_success') or 0.0))} %: {singles}; a null trial (a "
+        f"{_fmt(100 * (selfcheck.get('share_success') or 0.0))} %: "
+        f"{single_effect_share(selfcheck)}; a null trial (a "
         "log made by the profile under test) is right when nothing is added; a pair when both "
         "effects are the first added.</p>",
         f"<p>Under the null: {cal.get('reports_with_any_row_outside', 0)} of "

@@ -17,6 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from virtualgps.gap import diagnose as dg
+from virtualgps.gap.report import single_effect_share
 from virtualgps.gap.synthetic import (
     INJECTIONS,
     NOTHING,
@@ -206,14 +207,8 @@ def _confusion(rows: list[dict], key: str) -> dict[str, dict[str, int]]:
 def summary_lines(result: dict) -> list[str]:
     """The terminal summary: per trial label, how often the diagnosis got it right."""
     cal = result["null_calibration"]
-    first = result["share_ranked_first"]
-    # (a run of null or pair trials only has no single-effect trial to count: not "0 %")
-    singles = (f"injected effect ranked first in {100 * first:.0f} % of single-effect trials "
-               f"(another effect in {100 * _nz(result['share_other_first']):.0f} %)"
-               if isinstance(first, int | float) and math.isfinite(first)
-               else "no single-effect trials")
     lines = [f"self-check: {len(result['trials'])} trials, right in "
-             f"{100 * result['share_success']:.0f} %; {singles}"]
+             f"{100 * result['share_success']:.0f} %; {single_effect_share(result)}"]
     if cal["reports"]:
         lines.append(f"  null: {cal['reports_with_any_row_outside']}/{cal['reports']} reports "
                      f"with a located gap ({cal['rows_outside']}/{cal['rows']} rows), "
@@ -239,6 +234,3 @@ def summary_lines(result: dict) -> list[str]:
                      + (f" (ranked first instead: {others})" if others else ""))
     return lines
 
-
-def _nz(x: float) -> float:
-    return x if isinstance(x, int | float) and math.isfinite(x) else 0.0
