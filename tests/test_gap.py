@@ -196,19 +196,34 @@ def test_calibrated_profile_toml_round_trips(tmp_path):
     table, _ = load_profile_dict("holux-m1000")
     table = fx.apply(table, {"latency": {"enabled": True, "latency_s": 0.5}})
     p = tmp_path / "cal.toml"
-    dg.write_profile(table, "holux-m1000", [{"name": "latency"}], p)
+    dg.write_profile(table, "holux-m1000", ["latency"], p)
     prof = load_profile(str(p))
     assert prof.latency.enabled and prof.latency.latency_s == 0.5
     assert prof.name == "holux-m1000-calibrated"
+    assert prof.description == "holux-m1000 + latency"
     assert tomllib.loads(p.read_text())["nmea"]["sentences"][0] == "GGA"
     # what the outer test cannot vouch for heads the file as comments; it loads the same
     note = ("the outer test does not confirm latency: on data that neither the choice nor the "
             "fit saw the gap fell by -0.351 (95 %: -1.028 to 0.325), not clearly above 0")
-    dg.write_profile(table, "holux-m1000", [{"name": "latency"}], p, [note])
+    dg.write_profile(table, "holux-m1000", ["latency"], p, [note])
     head = [x for x in p.read_text().splitlines() if x.startswith("#")]
     assert len(head) >= 4 and all(len(x) <= 100 for x in head)
     assert " ".join(x[2:] for x in head[2:]) == note[0].upper() + note[1:] + "."
     assert load_profile(str(p)).latency.latency_s == 0.5
+    # calibrated again: the name stays, the description grows by what this run added
+    again, _ = load_profile_dict(str(p))
+    p2 = tmp_path / "again.toml"
+    dg.write_profile(again, "holux-m1000-calibrated", ["dop_error", "noise_level"], p2)
+    prof = load_profile(str(p2))
+    assert prof.name == "holux-m1000-calibrated"
+    assert prof.description == "holux-m1000 + latency + dop_error, noise_level"
+    dg.write_profile(again, "holux-m1000-calibrated", [], p2)
+    assert load_profile(str(p2)).description == "holux-m1000 + latency"
+    dg.write_profile(table, "holux-m1000", [], p2)
+    nothing, _ = load_profile_dict(str(p2))
+    assert nothing["description"] == "holux-m1000 (no effect reduced the held-out gap)"
+    dg.write_profile(nothing, "holux-m1000-calibrated", ["latency"], p2)
+    assert load_profile(str(p2)).description == "holux-m1000 + latency"
 
 
 def test_fit_keeps_the_default_without_evidence():

@@ -296,6 +296,8 @@ def _velocity_varies(run: Run) -> bool:
         vel.shape[0] * LAG_MIN_VEL_RMS_MPS ** 2)
 
 
+# The name a calibrated profile takes: its base profile's, with this suffix.
+CALIBRATED_SUFFIX = "-calibrated"
 EPOCH_SEGMENTS = ("all", "startup", "steady", "moving", "stationary", "near_buildings", "open")
 
 
@@ -321,14 +323,24 @@ def public(entry: dict) -> dict:
     return {k: v for k, v in entry.items() if not k.startswith("_")}
 
 
-def write_profile(table: dict, base_name: str, steps: list[dict], path: Path,
+def write_profile(table: dict, base_name: str, added: Sequence[str], path: Path,
                   notes: Sequence[str] = ()) -> None:
-    """Write the calibrated profile TOML (``run``/``replay --profile PATH`` accept it), with
-    ``notes`` (sentences: what the outer test cannot vouch for) as comments at its head."""
+    """Write the calibrated profile TOML (``run``/``replay --profile PATH`` accept it): ``table``
+    with the effects named in ``added``, made from the profile ``base_name``, with ``notes``
+    (sentences: what the outer test cannot vouch for) as comments at its head.
+
+    A profile that ``gap`` calibrated before keeps its name (``NAME-calibrated``, not
+    ``NAME-calibrated-calibrated``) and its description grows by the effects added this time.
+    """
     t = dict(table)
-    t["name"] = f"{base_name}-calibrated"
-    t["description"] = (f"{base_name} + " + ", ".join(s["name"] for s in steps)
-                        if steps else f"{base_name} (no effect reduced the held-out gap)")
+    done = " (no effect reduced the held-out gap)"
+    again = base_name.endswith(CALIBRATED_SUFFIX)
+    t["name"] = base_name if again else base_name + CALIBRATED_SUFFIX
+    before = str(table.get("description", base_name)) if again else base_name
+    if added:
+        t["description"] = f"{before.removesuffix(done)} + " + ", ".join(added)
+    else:
+        t["description"] = before if again else before + done
     head = ("# Made by `virtualgps gap`: the profile under test with the effects that reduced\n"
             "# the held-out gap, their parameters fitted on every run.\n")
     for n in notes:

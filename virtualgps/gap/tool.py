@@ -462,9 +462,9 @@ def write_outputs(report: dict, figures: Any, calibrated: dict, profile_name: st
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    steps = [e for e in report["effects"] if e.get("accepted")]
-    dg.write_profile(calibrated, profile_name, steps, out / "calibrated.toml",
-                     outer_notes(report.get("outer") or {}, added_effects(report)))
+    added = added_effects(report)
+    dg.write_profile(calibrated, profile_name, added, out / "calibrated.toml",
+                     outer_notes(report.get("outer") or {}, added))
     report["calibrated_profile"] = "calibrated.toml"
     rp.write_json(report, out / "report.json")
     rp.write_html(report, figures, out / "report.html", jobs, dask)
