@@ -132,6 +132,33 @@ def test_a_log_of_rmc_alone_has_fixes_and_says_what_it_cannot_assess(tmp_path):
     assert reasons["dgps_fraction"].startswith("no GGA")
 
 
+def test_a_static_log_without_altitudes_is_measured_about_its_median_fix():
+    """RMC or GLL alone prints no altitude. About the log's own median fix (a static run at an
+    unknown point) its horizontal errors are what they are with the altitudes, and only Up is
+    unknown (the median's height was NaN, and so was every error: CEP50 and R95 went missing
+    from the report of the MT3339 hour with its GGA lines taken out)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from virtualgps.gap.observed import Obs
+
+    rng = np.random.default_rng(5)
+    n = 300
+    ones = np.ones((1, n))
+    obs = Obs(lat_deg=52.1 + rng.normal(0.0, 2e-5, (1, n)),
+              lon_deg=11.6 + rng.normal(0.0, 3e-5, (1, n)),
+              alt_hae_m=140.0 + rng.normal(0.0, 4.0, (1, n)), quality=ones.astype(int),
+              hdop=ones, sats_used=8 * ones, speed_mps=0 * ones,
+              tracked=np.zeros((1, n, 0), bool), cn0_dbhz=np.zeros((1, n, 0)),
+              used=np.zeros((1, n, 0), bool))
+    view = SimpleNamespace(reference="median")
+    with_alt = where.errors_enu(view, obs)
+    without = where.errors_enu(view, replace(obs, alt_hae_m=np.full((1, n), np.nan)))
+    assert np.isfinite(with_alt).all() and np.isnan(without[..., 2]).all()
+    np.testing.assert_allclose(without[..., :2], with_alt[..., :2], atol=0.01)
+    assert 1.0 < np.median(np.hypot(*without[0, :, :2].T)) < 5.0
+
+
 def test_a_clock_offset_taken_out_at_ingest_is_said(tmp_path):
     """A log whose clock runs 30 s behind its truth's is matched at ingest (estimate_time_offset_s)
     and judged after; the terminal and the page say that it was, not only the lag that

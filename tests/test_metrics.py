@@ -58,6 +58,12 @@ def test_errors_enu_match_pymap3d():
     np.testing.assert_allclose(
         M.horizontal_error_m(got2), M.horizontal_error_m(want), atol=CENTIMETRE
     )
+    # a reference without a height (the median of a log that prints none): the horizontal
+    # errors as about the reference at the fixes' heights, Up NaN; with or without the fixes'
+    for fix_h in (h, np.full(50, np.nan)):
+        got_nan_ref = M.errors_enu_m(lat, lon, fix_h, lat0, lon0, np.nan)
+        assert np.all(np.isnan(got_nan_ref[:, 2]))
+        np.testing.assert_allclose(got_nan_ref[:, :2], want[:, :2], atol=CENTIMETRE)
     # per-epoch reference (truth) broadcasts
     got3 = M.errors_enu_m(lat, lon, h, lat, lon, h)
     np.testing.assert_allclose(got3, 0.0, atol=MILLIMETRE)

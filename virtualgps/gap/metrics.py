@@ -46,7 +46,9 @@ def errors_enu_m(
 
     Exact WGS-84 (fix and reference through ECEF). Both altitudes must share a datum; the
     horizontal errors do not depend on it. A fix without altitude (NaN) keeps its horizontal
-    error (it is placed at the reference's height) and gets a NaN Up error.
+    error (it is placed at the reference's height) and gets a NaN Up error; so does every fix
+    about a reference without a height (the median of a log that prints no altitude, RMC or
+    GLL alone: both are then placed at height 0).
 
     Parameters
     ----------
@@ -63,13 +65,15 @@ def errors_enu_m(
     lat, lon, alt = (np.asarray(a, dtype=float) for a in (lat_deg, lon_deg, alt_hae_m))
     rlat, rlon, ralt = (np.asarray(a, dtype=float) for a in (ref_lat_deg, ref_lon_deg,
                                                              ref_alt_hae_m))
+    ref_has_alt = np.isfinite(ralt)
+    ralt = np.where(ref_has_alt, ralt, 0.0)
     no_alt = ~np.isfinite(alt)
     fix_ecef = geodetic_to_ecef(lat, lon, np.where(no_alt, ralt, alt))
     # the reference's frame on its own shape (one truth for every seed's fixes: the rotation
     # is made once per epoch, not once per seed and epoch)
     d = fix_ecef - geodetic_to_ecef(rlat, rlon, ralt)
     enu = (ecef_to_enu_matrix(rlat, rlon) @ d[..., None])[..., 0]
-    enu[..., 2] = np.where(no_alt, np.nan, enu[..., 2])
+    enu[..., 2] = np.where(no_alt | ~ref_has_alt, np.nan, enu[..., 2])
     return enu
 
 
