@@ -59,6 +59,30 @@ def test_ingest_survives_what_real_logs_hold(tmp_path):
     assert run.has_gsv and run.has_cn0 and run.has_gsa and run.quality_codes == {1: 1, 7: 1}
 
 
+def test_a_log_without_checksums_is_read_and_said_to_be(tmp_path):
+    """NMEA 0183 makes the checksum optional, and some loggers strip it: a log in which no line
+    carries one is read without (it was "no GGA, RMC or GLL sentence"), and the report says so;
+    where the sentences carry one, a line without is one cut short and is skipped."""
+    from virtualgps.gap.ingest import ingest_notes
+
+    body = ["GPGGA,12000{k},5207.000{k},N,01138.0000,E,1,08,0.9,50.0,M,44.0,M,,",
+            "GPRMC,12000{k},A,5207.000{k},N,01138.0000,E,0.0,0.0,010318,,,A"]
+    p = tmp_path / "bare.nmea"
+    p.write_text("junk\n" + "".join(f"${b.format(k=k)}\n" for k in range(5) for b in body))
+    run = load_run(p, "static")
+    assert len(run.epochs) == 5 and not run.epochs.checksummed
+    np.testing.assert_allclose(run.epochs.lat_deg, 52.0 + (7.0 + 1e-4 * np.arange(5)) / 60.0)
+    assert run.sentences == {"GGA": 5, "RMC": 5}
+    assert any("no sentence carries a checksum" in n for n in ingest_notes(
+        {"checksummed": run.epochs.checksummed}))
+    assert ingest_notes({"checksummed": True}) == []
+    # one checksummed line among them: the bare ones are taken as cut short
+    p.write_text(sentence(body[1].format(k=9)) + "\n" + p.read_text())
+    ep, skipped, sentences, _ = read_real_log(p)
+    assert len(ep) == 1 and ep.checksummed
+    assert skipped["truncated"] == 10 and sentences == {"RMC": 1}
+
+
 def test_epochs_before_a_receivers_clock_is_set_are_left_out(shared_data, tmp_path):
     """mtk-3301.log counts from its RTC's 23:59:46 (dated 050180) until its first fix at
     08:14:36: those five epochs, hours from every fix, are left out and counted; the two

@@ -238,6 +238,9 @@ def ingest_notes(run: dict) -> list[str]:
     notes = []
     if run.get("dated_by") == "truth":
         notes.append("no RMC or ZDA dates its epochs: dated by its truth's times")
+    if run.get("checksummed") is False:
+        notes.append("no sentence carries a checksum (NMEA 0183 makes it optional): read "
+                     "without, so a line cut short or corrupted cannot be told from a good one")
     off = run.get("offset") or {}
     if off.get("at_edge"):
         notes.append(f"its fixes match the truth best at a clock offset of {off['best_s']:+.0f} "

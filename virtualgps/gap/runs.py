@@ -207,7 +207,7 @@ def prepare_runs(
         )
         out.append(Run(setup, view, errors_enu(view, real), {
             "skipped": dict(run.skipped), "sentences": dict(run.sentences),
-            "dated_by": run.dated_by,
+            "dated_by": run.dated_by, "checksummed": bool(ep.checksummed),
             "time_offset_s": run.time_offset_s, "offset": dict(run.offset_info),
             "simulated_in": "scene" if setup.scene_path else "open sky",
             "silent_prns": [int(p) for p in geom.prn[silent]],

@@ -85,6 +85,8 @@ class NmeaEpochs:
     n_bad : int, lines holding a ``$`` that failed the checksum or had malformed fields
     dated : bool, the log's own RMC/ZDA date its epochs (False: the caller's default date,
         no RMC or ZDA having one)
+    checksummed : bool, its sentences carry checksums (False: none in the log has a valid one,
+        and it was read without, :func:`_read_epochs`)
     """
 
     t_unix_s: np.ndarray
@@ -113,6 +115,7 @@ class NmeaEpochs:
     line: np.ndarray
     n_bad: int
     dated: bool = True
+    checksummed: bool = True
 
     def __len__(self) -> int:
         return int(self.t_unix_s.shape[0])
@@ -274,13 +277,15 @@ def _read_timed(e: _Epoch, kind: str, f: list[str], no: int) -> None:
 
 
 def _read_epochs(lines: Iterable[str], tally: Counter | None = None
-                 ) -> tuple[list[_Epoch], int]:
+                 ) -> tuple[list[_Epoch], int, bool]:
     """Group NMEA lines into epochs: the one reading pass of every log reader here.
 
     A timed sentence (GGA, RMC, GLL, ZDA) with a time different from the current epoch's starts
     a new epoch; one without a time (a receiver just powered up) is skipped. GSA and GSV go to
     the current epoch (those before the first timed sentence are dropped). Text before ``$`` is
-    ignored (:func:`parse_sentence`).
+    ignored (:func:`parse_sentence`). NMEA 0183 makes the checksum optional and some loggers
+    strip it: a log in which no line carries a valid one is read without (as gpsd reads such
+    sentences); in a log whose sentences carry one, a line without is a line cut short.
 
     tally : where given, counts every line: each sentence by its address (``GPGGA``), and the
     lines that hold none by why (``not_nmea``: text without ``$``; ``truncated``: no ``*HH``
@@ -290,7 +295,10 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
     -------
     epochs : in file order
     n_bad : lines holding a ``$`` with a bad checksum or malformed fields (skipped)
+    checksummed : the log's sentences carry checksums (False: read without)
     """
+    lines = list(lines)
+    checksummed = any(parse_sentence(raw) is not None for raw in lines if "$" in raw)
     epochs: list[_Epoch] = []
     cur: _Epoch | None = None
     n_bad = 0
@@ -299,7 +307,7 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
             if tally is not None and raw.strip():
                 tally["not_nmea"] += 1
             continue
-        parsed = parse_sentence(raw)
+        parsed = parse_sentence(raw, require_checksum=checksummed)
         if parsed is None:
             n_bad += 1
             if tally is not None:
@@ -348,7 +356,7 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
                                             tuple(_opt_float(x) for x in f[j + 1 : j + 4]))
         except (ValueError, IndexError):
             n_bad += 1
-    return epochs, n_bad
+    return epochs, n_bad, checksummed
 
 
 def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | None
@@ -437,7 +445,7 @@ def nmea_epochs_from_lines(
     InputFileError
         when no RMC/ZDA gives a date and ``default_date`` is None.
     """
-    epochs, n_bad = _read_epochs(lines, tally)
+    epochs, n_bad, checksummed = _read_epochs(lines, tally)
     n_t = len(epochs)
     t_unix_s, dated = _epoch_times_s(epochs, source, default_date)
 
@@ -507,6 +515,7 @@ def nmea_epochs_from_lines(
         line=arr((e.line for e in epochs), np.int64),
         n_bad=n_bad,
         dated=dated,
+        checksummed=checksummed,
     )
 
 
@@ -536,7 +545,7 @@ def nmea_fixes_from_lines(
     InputFileError
         when the log has GGA fixes, no RMC/ZDA gives a date and ``default_date`` is None.
     """
-    epochs, n_bad = _read_epochs(lines)
+    epochs, n_bad, _ = _read_epochs(lines)
     has_gga = np.array([e.gga is not None for e in epochs], dtype=bool)
     t = np.zeros(0)
     if has_gga.any():
