@@ -439,6 +439,28 @@ def test_gzip_compressed_logs_read_as_the_plain_ones(tmp_path):
         pose_logs.read_pose_log(cut)
 
 
+def test_logs_written_as_utf16_or_with_a_bom_read_as_the_plain_ones(tmp_path):
+    """Windows PowerShell's ``>`` and ``Out-File`` write a captured log as UTF-16 with a
+    byte-order mark; some editors put UTF-8's mark before a log. Each reads as the plain file
+    (UTF-16 read as UTF-8 held no sentence: every other byte a NUL)."""
+    body = "".join(nmea.format_sentence(s) for s in (
+        "GPGGA,120000.000,5208.4040,N,01138.5946,E,1,06,0.94,55.3,M,44.7,M,,",
+        "GPRMC,120000.000,A,5208.4040,N,01138.5946,E,1.00,90.00,260317,,,A"))
+    plain = tmp_path / "plain.nmea"
+    plain.write_bytes(body.encode("ascii"))
+    want = nmea.read_text_lines(plain)
+    assert want == body.replace("\r", "").split("\n")
+    for enc in ("utf-16", "utf-16-le", "utf-16-be", "utf-8-sig"):
+        data = body.encode(enc)
+        if enc in ("utf-16-le", "utf-16-be"):  # their mark written by hand, as Windows does
+            data = "\ufeff".encode(enc) + data
+        p = tmp_path / f"{enc}.nmea"
+        p.write_bytes(data)
+        assert nmea.read_text_lines(p) == want, enc
+        assert pose_logs.read_pose_log(p).xyz.tolist() == pose_logs.read_pose_log(
+            plain).xyz.tolist()
+
+
 def test_real_span_reference_log(shared_data):
     path = shared_data / "gsdc-2020-05-14-mtv" / "SPAN_Pixel4_1Hz.nmea"
     tr = pose_logs.read_pose_log(path)

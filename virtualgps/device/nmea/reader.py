@@ -9,6 +9,7 @@ One pass groups sentences into epochs (:func:`_read_epochs`); two views of it:
 
 from __future__ import annotations
 
+import codecs
 import errno
 import gzip
 import math
@@ -579,8 +580,10 @@ def read_text_lines(path: str | Path) -> list[str]:
     """Read a text file as lines, undecodable bytes replaced (real logs hold binary noise).
 
     A gzip-compressed file (by its magic bytes, whatever its name) is read decompressed:
-    logs are often kept as ``.nmea.gz``. Lines are split on LF only (CR stripped), so line
-    numbers match what editors show.
+    logs are often kept as ``.nmea.gz``. A file that starts with a UTF-16 byte-order mark is
+    read as UTF-16 (Windows PowerShell's ``>`` and ``Out-File`` write logs so), one with
+    UTF-8's without it. Lines are split on LF only (CR stripped), so line numbers match what
+    editors show.
 
     Raises
     ------
@@ -593,7 +596,13 @@ def read_text_lines(path: str | Path) -> list[str]:
             data = gzip.decompress(data)
         except (OSError, EOFError, zlib.error) as e:
             raise OSError(errno.EIO, f"a gzip file that does not decompress ({e})") from None
-    return [ln.rstrip("\r") for ln in data.decode("utf-8", errors="replace").split("\n")]
+    bom = next((enc for mark, enc in _BOMS if data.startswith(mark)), "utf-8")
+    return [ln.rstrip("\r") for ln in data.decode(bom, errors="replace").split("\n")]
+
+
+# Byte-order marks and the codecs that read past them (codecs.BOM_*).
+_BOMS = ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
+         (codecs.BOM_UTF16_BE, "utf-16"))
 
 
 def _read_log_lines(path: str | Path) -> list[str]:
