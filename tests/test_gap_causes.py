@@ -293,6 +293,41 @@ def test_the_lag_from_the_steps_is_pinned_down_where_a_slow_error_hides_it():
         assert cause["lag_s"] == pytest.approx(want, abs=0.2 if want < 0 else 0.05)
 
 
+def test_a_clock_offset_of_the_leap_seconds_is_named_as_gps_time_read_as_utc():
+    """A truth stamped in GPS time and read as UTC (a GNSS/INS truth's usual slip) puts a 2020
+    log 18 s behind it (GSDC's Pixel 4 against its SPAN truth so moved: 18.01 s found at
+    ingest and taken out): the note names the leap seconds, and which clock; an offset of
+    another size, or 18 s where GPS - UTC was 17 s (before 2017), is not named so."""
+    from types import SimpleNamespace
+
+    from virtualgps import geodesy
+
+    rng = np.random.default_rng(3)
+    t, tf, en, _ = _turning_track(rng, 300)
+    pos = np.stack([np.interp(t, tf, en[:, a]) for a in (0, 1)], 1)
+    vel = np.zeros((t.size, 3))
+    vel[:, :2] = np.gradient(pos, t, axis=0)
+    lat, lon = geodesy.offset_geodetic_deg(np.full(t.size, 37.0), np.full(t.size, -122.0),
+                                           np.zeros(t.size), pos[:, 0], pos[:, 1])
+    view = SimpleNamespace(valid=np.ones(t.size, bool), t_unix_s=t + 1589493694.0, name="drive",
+                           vel_enu_mps=vel, speed_mps=np.hypot(vel[:, 0], vel[:, 1]),
+                           truth_lat_deg=lat, truth_lon_deg=lon,
+                           near_building=np.zeros(t.size, bool))
+    fixes = np.zeros((1, t.size, 3))
+    fixes[0, :, :2] = rng.normal(0.0, 0.5, (t.size, 2))
+    cause = causes.time_offset(SimpleNamespace(view=view, err_real=fixes,
+                                               info={"time_offset_s": -18.01}), 60.0)
+    assert cause["gps_minus_utc_s"] == 18.0
+    assert causes.clock_note(cause) == (
+        "the clock of drive's log runs 18.01 s behind its truth's: taken out before judging; "
+        "18 s is GPS time minus UTC on that day (the leap seconds): the truth's times are "
+        "likely GPS time read as UTC")
+    assert "the log's times are likely GPS time" in causes.clock_note(dict(cause, applied_s=17.7))
+    for off_s, leap_s in ((-29.99, 18.0), (-18.01, 17.0), (-18.6, 18.0), (-0.2, 0.0)):
+        note = causes.clock_note(dict(cause, applied_s=off_s, gps_minus_utc_s=leap_s))
+        assert "leap" not in note and note.endswith("taken out before judging")
+
+
 def test_the_error_step_is_measured_about_the_truth_delayed_by_the_lag():
     """A delay adds the change of velocity times the delay to every step of the error about
     the truth; about the truth delayed by the fixes' own lag the steps are the receiver's

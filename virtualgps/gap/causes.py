@@ -43,6 +43,7 @@ from virtualgps.gap.motion import fix_lag_s, lag_s
 from virtualgps.gap.runs import Run
 from virtualgps.gap.where import MOVING_MPS, errors_enu
 from virtualgps.sky import systems
+from virtualgps.sky.broadcast import gps_minus_utc_s
 
 OFFSET_P = 0.01  # a truth offset is named at this level (it moves the truth for the rest)
 OFFSET_MIN_M = 1.0  # and only when larger than this
@@ -279,6 +280,13 @@ def shift_truth(run: Run, east_m: float, north_m: float) -> Run:
     return replace(run, err_real=errors_enu(moved, v.real))
 
 
+# A clock offset this close to GPS - UTC (seconds) is named as that: a time stamped in GPS time
+# and read as UTC (the usual slip with a GNSS/INS truth), or a receiver printing GPS time. The
+# ingest places an offset to about 0.01 s on a drive (GSDC: 18.01 s for 18 s); a receiver's own
+# output latency, up to a few tenths of a second, adds to it.
+LEAP_MATCH_S = 0.5
+
+
 def clock_note(cause: dict) -> str | None:
     """What a ``time_offset`` cause says of a log-vs-truth clock offset found and taken out at
     ingest (beyond :data:`~virtualgps.gap.ingest.LATENCY_LIKE_S`), None where none was."""
@@ -286,8 +294,13 @@ def clock_note(cause: dict) -> str | None:
     if not off:
         return None
     side = "behind" if off < 0 else "ahead of"
-    return (f"the clock of {cause['run']}'s log runs {abs(off):.2f} s {side} its truth's: "
+    said = (f"the clock of {cause['run']}'s log runs {abs(off):.2f} s {side} its truth's: "
             "taken out before judging")
+    leap = cause.get("gps_minus_utc_s")
+    if leap and abs(abs(off) - leap) <= LEAP_MATCH_S:
+        said += (f"; {leap:.0f} s is GPS time minus UTC on that day (the leap seconds): "
+                 f"the {'truth' if off < 0 else 'log'}'s times are likely GPS time read as UTC")
+    return said
 
 
 # The receiver effects that make fixes lag their truth (DESIGN 7.5): what a time_offset cause's
@@ -363,6 +376,7 @@ def time_offset(run: Run, corr_time_s: float) -> dict | None:
     out = {"name": "time_offset", "kind": "clock", "run": v.name, "lag_s": whole,
            "blocks": int(lags.size), "interval_s": [math.nan, math.nan],
            "ingest_best_s": info.get("best_s"), "applied_s": run.info.get("time_offset_s", 0.0),
+           "gps_minus_utc_s": float(gps_minus_utc_s(v.t_unix_s[0])),
            "what": "the fixes lag the truth by this much: a log-vs-truth clock offset and a "
                    "receiver's output latency move the fixes alike, and positions alone cannot "
                    "tell them apart"}
