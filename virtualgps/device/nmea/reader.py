@@ -576,6 +576,11 @@ def nmea_fixes_from_lines(
     )
 
 
+# Byte-order marks and the codecs that read past them (codecs.BOM_*).
+_BOMS = ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
+         (codecs.BOM_UTF16_BE, "utf-16"))
+
+
 def read_text_lines(path: str | Path) -> list[str]:
     """Read a text file as lines, undecodable bytes replaced (real logs hold binary noise).
 
@@ -598,11 +603,6 @@ def read_text_lines(path: str | Path) -> list[str]:
             raise OSError(errno.EIO, f"a gzip file that does not decompress ({e})") from None
     bom = next((enc for mark, enc in _BOMS if data.startswith(mark)), "utf-8")
     return [ln.rstrip("\r") for ln in data.decode(bom, errors="replace").split("\n")]
-
-
-# Byte-order marks and the codecs that read past them (codecs.BOM_*).
-_BOMS = ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
-         (codecs.BOM_UTF16_BE, "utf-16"))
 
 
 def _read_log_lines(path: str | Path) -> list[str]:
