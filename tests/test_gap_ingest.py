@@ -308,6 +308,33 @@ def test_real_logs_load(shared_data):
     assert abs(gs.time_offset_s) < 2.0, gs.offset_info
 
 
+def test_a_phone_log_kept_by_gnsslogger_reads_as_its_nmea(shared_data, tmp_path):
+    """Android's GnssLogger keeps the chipset's NMEA among its own records, each sentence
+    between ``NMEA,`` and ``,<Unix ms>``: the GSDC Pixel 4 drive written so gives the same
+    epochs as its plain NMEA (a suffix after the checksum had made every sentence one with a
+    bad checksum, and the log one without any fix)."""
+    plain = shared_data / "gsdc-2020-05-14-mtv" / "Pixel4_chipset.nmea"
+    header = ["#", "# Header Description:", "#",
+              "# Version: v3.0.5.6 Platform: 11 Manufacturer: Google Model: Pixel 4", "#",
+              "# Fix,Provider,LatitudeDegrees,LongitudeDegrees,AltitudeMeters,SpeedMps,"
+              "AccuracyMeters,BearingDegrees,UnixTimeMillis", "# NMEA,NMEA,UnixTimeMillis", "#"]
+    kept = list(header)
+    for k, line in enumerate(plain.read_text().splitlines()):
+        kept.append(f"NMEA,{line},{1589493646000 + 500 * k}")
+        if k % 2:
+            kept.append(f"Fix,gps,37.42358,-122.09412,-2.8,0.0,3.9,0.0,{1589493646000 + 500 * k}")
+    logged = tmp_path / "gnss_log.txt"
+    logged.write_text("\n".join(kept) + "\n")
+    ep, skipped, sentences, _ = read_real_log(logged)
+    ref, ref_skipped, ref_sentences, _ = read_real_log(plain)
+    assert len(ep) == len(ref) > 1000 and sentences == ref_sentences
+    np.testing.assert_array_equal(ep.t_unix_s, ref.t_unix_s)
+    np.testing.assert_array_equal(ep.lat_deg, ref.lat_deg)
+    np.testing.assert_array_equal(ep.alt_msl_m, ref.alt_msl_m)
+    assert skipped["not_nmea"] == sum(1 for line in kept if not line.startswith("NMEA,"))
+    assert {k: n for k, n in skipped.items() if k != "not_nmea"} == ref_skipped
+
+
 def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_data):
     """The GSDC drive's SPAN truth drops out 31 times (quality 0 for 3-68 epochs). No epoch in
     a gap is compared, but the simulated receiver runs on through those of up to

@@ -125,6 +125,13 @@ def test_parse_sentence_prefix_checksum_and_junk():
     )
     assert nmea.parse_sentence("no sentence here") is None
     assert nmea.parse_sentence("\x00\xff$GPGSA,A,1,,,,,,,,,,,,,,,é*1E") is None
+    # a logger's text after the checksum (Android GnssLogger: ``,<Unix ms>``) is ignored; a
+    # checksum run on into a letter or digit is a corrupted one
+    assert nmea.parse_sentence("NMEA,$GPGSA,A,1,,,,,,,,,,,,,,,*1E,1513187753149") == (
+        "GPGSA", ["A", "1"] + [""] * 15)
+    assert nmea.parse_sentence("$GPGSA,A,1,,,,,,,,,,,,,,,*1E\t#note")[0] == "GPGSA"
+    assert nmea.parse_sentence("$GPGSA,A,1,,,,,,,,,,,,,,,*1E7") is None
+    assert nmea.parse_sentence("$GPGSA,A,1,,,,,,,,,,,,,,,*1F,1513187753149") is None
     # the last $ starts the sentence: a merged line keeps its intact tail
     assert nmea.parse_sentence("$GPGGA,1234$GPGSA,A,1,,,,,,,,,,,,,,,*1E")[0] == "GPGSA"
 

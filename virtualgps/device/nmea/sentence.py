@@ -54,7 +54,9 @@ def parse_sentence(line: str, require_checksum: bool = True) -> tuple[str, list[
 
     Any text before the last ``$`` is ignored (phone logs prefix each line with a time stamp,
     e.g. Magdeburg ``2:52:16:587 Nachm. 03/28/17 - $GPGSV,...``); ``$`` never occurs inside a
-    sentence (NMEA 0183 reserved character).
+    sentence (NMEA 0183 reserved character). So is text after the checksum that a separator
+    sets off (Android's GnssLogger appends ``,<Unix ms>``); a checksum followed by a letter
+    or digit is a corrupted one.
 
     Parameters
     ----------
@@ -72,8 +74,10 @@ def parse_sentence(line: str, require_checksum: bool = True) -> tuple[str, list[
     s = line[start + 1 :].rstrip("\r\n\t \x00")
     star = s.rfind("*")
     if star >= 0:
-        body, given = s[:star], s[star + 1 :]
-        if len(given) != 2:
+        body, given, after = s[:star], s[star + 1 : star + 3], s[star + 3 :]
+        # text after the checksum, set off by a separator, is a logger's: Android's GnssLogger
+        # writes ``NMEA,$GPGGA,...*5A,1513187753149`` (the phone's Unix milliseconds)
+        if len(given) != 2 or (after and after[0].isalnum()):
             return None
         try:
             want = int(given, 16)
