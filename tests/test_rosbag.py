@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -137,3 +139,87 @@ def test_topic_picks_one_and_errors_name_the_candidates(tmp_path):
     broken.write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 64)
     r = _replay(broken, tmp_path / "x.nmea")
     assert r.returncode != 0 and "broken.bag" in r.stderr and "Traceback" not in r.stderr
+
+
+def _sentence_bag(path: Path, nmea_lines: list[str], topics: dict[str, str], storage: str,
+                  definitions: bool = True) -> Path:
+    """A bag holding a receiver's sentences on /nmea_sentence (nmea_msgs/Sentence, one line a
+    message, as nmea_navsat_driver's nmea_topic_serial_reader publishes them) beside the walk
+    on each of ``topics`` ({topic: kind}); ``definitions`` False: a ROS 2 bag whose types are
+    named but not defined, as rosbag2 wrote them before Iron."""
+    from rosbags.typesys import get_types_from_msg
+
+    ros1 = storage == "bag"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg("std_msgs/Header header\nstring sentence\n",
+                                   "nmea_msgs/msg/Sentence"))
+    writer = (Writer1(path) if ros1 else
+              Writer2(path, version=9, storage_plugin=StoragePlugin.SQLITE3))
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    with writer as w:
+        conn = w.add_connection("/nmea_sentence", "nmea_msgs/msg/Sentence", typestore=ts)
+        t = T0
+        for line in nmea_lines:
+            if line.startswith("$GPGGA"):
+                t += 1.0
+            msg = ts.types["nmea_msgs/msg/Sentence"](header=_stamp(ts, t + 0.2, ros1),
+                                                     sentence=line)
+            w.write(conn, int((t + 0.2) * 1e9), serialize(msg, "nmea_msgs/msg/Sentence"))
+        for topic, kind in topics.items():
+            conn = w.add_connection(topic, TYPES[kind], typestore=ts)
+            for t_pose, msg in _messages(ts, kind, ros1):
+                w.write(conn, int(t_pose * 1e9) + 5_000_000, serialize(msg, TYPES[kind]))
+    if not definitions:
+        with contextlib.closing(sqlite3.connect(next(path.glob("*.db3")))) as db:
+            db.execute("DELETE FROM message_definitions")
+            db.commit()
+    return path
+
+
+def test_a_receivers_sentences_in_a_bag_are_diagnosed_as_its_log(tmp_path):
+    """A robot keeps its receiver's NMEA in a bag (nmea_msgs/Sentence) beside the ground truth:
+    ``gap --real run.bag --truth run.bag:/ground_truth`` reads the same epochs and writes the
+    same diagnosis as the text log and a pose log, from ROS 1 and ROS 2 bags (an old ROS 2
+    bag names nmea_msgs/Sentence without defining it); a bag without sentences, or a topic
+    that is not one, is one clear error."""
+    from virtualgps.gap.ingest import read_real_log
+
+    walk = _jsonl(tmp_path / "walk.jsonl", geodetic=True)
+    log = tmp_path / "walk.nmea"
+    assert _replay(walk, log, "--scene", "none").returncode == 0
+    lines = log.read_text().splitlines()
+    ref = read_real_log(log)
+    for storage, definitions in (("bag", True), ("db3", True), ("db3", False)):
+        name = f"walk-{storage}-{definitions}{'.bag' * (storage == 'bag')}"
+        bag = _sentence_bag(tmp_path / name, lines, {"/fix": "fix"}, storage, definitions)
+        got = read_real_log(bag)
+        np.testing.assert_array_equal(got[0].t_unix_s, ref[0].t_unix_s)
+        np.testing.assert_array_equal(got[0].lat_deg, ref[0].lat_deg)
+        np.testing.assert_array_equal(got[0].cn0_dbhz, ref[0].cn0_dbhz)
+        assert got[1:] == ref[1:]
+
+    bag = _sentence_bag(tmp_path / "run.bag", lines, {"/fix": "fix", "/ground_truth": "fix"},
+                        "bag")
+
+    def gap(real, truth, out):
+        return subprocess.run(
+            [sys.executable, "-m", "virtualgps", "gap", "--real", str(real), "--truth",
+             str(truth), "--scene", "none", "--effects", "none", "--seeds", "4", "--jobs", "1",
+             "--out", str(tmp_path / out)], capture_output=True, text=True, timeout=300)
+
+    r_bag = gap(bag, f"{bag}:/ground_truth", "bag")
+    r_ref = gap(log, walk, "ref")
+    assert r_bag.returncode == 0 and r_ref.returncode == 0, r_bag.stderr + r_ref.stderr
+    rep_bag = json.loads((tmp_path / "bag" / "report.json").read_text())
+    rep_ref = json.loads((tmp_path / "ref" / "report.json").read_text())
+    assert rep_bag["runs"][0]["name"] == "run" and rep_bag["runs"][0]["real"] == str(bag)
+    assert rep_bag["headline"] == rep_ref["headline"] and rep_bag["where"] == rep_ref["where"]
+    # the truth's bag holds two pose topics: one must be named; no sentence topic, one error
+    r = gap(bag, bag, "x")
+    assert r.returncode == 2 and "several pose topics" in r.stderr and ":TOPIC" in r.stderr
+    r = gap(f"{bag}:/fix", walk, "x")
+    assert r.returncode == 2 and "/fix is a sensor_msgs/msg/NavSatFix, not NMEA" in r.stderr
+    poses_only = write_bag(tmp_path / "poses.bag", {"/fix": "fix"}, "bag")
+    r = gap(poses_only, walk, "x")
+    assert r.returncode == 2 and "no NMEA topic (nmea_msgs/Sentence" in r.stderr
+    assert "/fix (sensor_msgs/msg/NavSatFix)" in r.stderr and "Traceback" not in r.stderr

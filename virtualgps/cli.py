@@ -139,11 +139,13 @@ def build_parser() -> argparse.ArgumentParser:
         "and DIR/calibrated.toml.",
     )
     gap.add_argument("--real", action="append", default=[], metavar="LOG",
-                     help="a real receiver's NMEA log (repeat: one per run)")
+                     help="a real receiver's NMEA log, or a ROS bag of its nmea_msgs/Sentence "
+                     "(BAG:TOPIC where it has several) (repeat: one per run)")
     gap.add_argument("--truth", action="append", default=[], metavar="TRUTH",
-                     help="the run's true trajectory: a pose log (JSONL, CSV, TUM, NMEA), "
-                     "'static' (stood still at an unknown point) or static:LAT,LON,ALT_HAE "
-                     "(repeat, in the order of --real)")
+                     help="the run's true trajectory: a pose log (JSONL, CSV, TUM, NMEA, a ROS "
+                     "bag: BAG:TOPIC where it has several pose topics), 'static' (stood still "
+                     "at an unknown point) or static:LAT,LON,ALT_HAE (repeat, in the order of "
+                     "--real)")
     gap.add_argument("--scene", help="scene folder or scene.toml, or 'none' (default: the "
                      "bundled magdeburg-campus; runs far from it are simulated in open sky)")
     gap.add_argument("--tle", action="append",

@@ -34,7 +34,7 @@ from virtualgps.device.nmea import (
 from virtualgps.exceptions import ConfigError, InputFileError
 from virtualgps.gap.metrics import median_position
 from virtualgps.poses import logs as pose_logs
-from virtualgps.poses import pose
+from virtualgps.poses import pose, rosbag
 from virtualgps.receiver.definition import Georef
 
 TRUTH_MAX_GAP_S = 3.0  # truth poses further apart than this leave the epochs between unknown
@@ -106,7 +106,8 @@ class RealRun:
 
 
 def parse_truth(spec: str) -> Truth:
-    """Read a truth spec: ``static``, ``static:LAT,LON,ALT_HAE`` or a pose log path.
+    """Read a truth spec: ``static``, ``static:LAT,LON,ALT_HAE`` or a pose log path (a ROS
+    bag's pose topic named after it where it has several: ``run.bag:/ground_truth``).
 
     Raises
     ------
@@ -126,11 +127,12 @@ def parse_truth(spec: str) -> Truth:
             raise ConfigError(f"--truth {spec!r}: latitude must be within +-90 and longitude "
                               "within +-180 degrees")
         return Truth("static_point", None, lat, lon, alt, spec)
-    path = Path(spec)
+    log, topic = rosbag.split_topic(spec)
+    path = Path(log)
     if not path.exists():
         raise ConfigError(f"--truth {spec!r}: no such file; give a pose log, 'static' or "
                           "static:LAT,LON,ALT_HAE")
-    return Truth("track", pose_logs.read_pose_log(path), source=spec)
+    return Truth("track", pose_logs.read_pose_log(path, topic), source=spec)
 
 
 def _census(tally: Counter) -> tuple[Counter, Counter]:
@@ -159,15 +161,17 @@ def take_epochs(epochs: NmeaEpochs, keep: np.ndarray) -> NmeaEpochs:
     return replace(epochs, **cut)
 
 
-def read_real_log(path: str | Path, near_unix_s: float | None = None
+def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str | None = None
                   ) -> tuple[NmeaEpochs, dict, dict, str]:
     """Read a real NMEA log as time-ordered epochs, one per time; stretches of epochs without
     a fix that lie more than :data:`CLOCK_JUMP_S` apart from those with one are left out
     (``epochs_clock_not_set``).
 
+    path : a text log, or a ROS bag whose ``nmea_msgs/Sentence`` topic holds the sentences
     near_unix_s : UTC seconds near the log's start (its truth's first pose), which dates a log
         that no RMC or ZDA dates (a GGA-only log): its first epoch goes on the day that puts it
         nearest this time. None: such a log is an error.
+    topic : the bag's sentence topic (None: its only one)
 
     Returns
     -------
@@ -182,7 +186,8 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None
         or fixes spanning more than :data:`MAX_RUN_SPAN_S` (one clear line)
     """
     try:
-        lines = read_text_lines(path)
+        lines = (rosbag.read_bag_sentences(path, topic) if rosbag.is_bag(path)
+                 else read_text_lines(path))
     except OSError as e:
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
     if not any(ln.strip() for ln in lines):
@@ -262,20 +267,22 @@ def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) ->
 
     Parameters
     ----------
-    real_path : the real receiver's NMEA log
-    truth_spec : a pose log path, ``static`` or ``static:LAT,LON,ALT_HAE``
+    real_path : the real receiver's NMEA log, or a ROS bag of its sentences (``run.bag``, or
+        ``run.bag:TOPIC`` where it has several sentence topics)
+    truth_spec : a pose log path (a bag's topic named so too), ``static`` or
+        ``static:LAT,LON,ALT_HAE``
     name : the run's name (default: the log's file stem)
 
     Returns
     -------
-    RealRun
+    RealRun : its ``path`` as given (a bag with its topic)
     """
-    path = Path(real_path)
+    log, topic = rosbag.split_topic(str(real_path))
     truth = parse_truth(truth_spec)
-    ep, skipped, sentences, dated_by = read_real_log(path, _dating_time_s(truth))
+    ep, skipped, sentences, dated_by = read_real_log(log, _dating_time_s(truth), topic)
     gps = (ep.prn >= 1) & (ep.prn <= 32)
     run = RealRun(
-        name=name or path.stem, path=path, epochs=ep, truth=truth,
+        name=name or Path(log).stem, path=Path(real_path), epochs=ep, truth=truth,
         skipped=skipped, sentences=sentences, dated_by=dated_by,
         quality_codes={int(q): int(c) for q, c in zip(*np.unique(ep.quality, return_counts=True),
                                                        strict=True)},

@@ -69,9 +69,11 @@ class GapInputs:
 
 
 def _names(paths: Sequence[str]) -> list[str]:
+    from virtualgps.poses.rosbag import split_topic
+
     out, seen = [], {}
     for p in paths:
-        stem = Path(p).stem
+        stem = Path(split_topic(p)[0]).stem
         seen[stem] = seen.get(stem, 0) + 1
         out.append(stem if seen[stem] == 1 else f"{stem}-{seen[stem]}")
     return out

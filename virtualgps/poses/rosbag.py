@@ -11,12 +11,18 @@ Three message types carry a pose (``virtualgps replay run.bag``, ``run --poses r
 
 Each pose is dated by its header stamp (the time it was measured), or by the bag's record time
 where the stamp is zero. ``--topic`` picks one topic where several fit; without it a bag with
-several candidates is an error naming them.
+several candidates is an error naming them. ``gap``, which takes several logs, names the topic
+after the bag, ``run.bag:/ground_truth`` (:func:`split_topic`).
+
+A real receiver's NMEA kept in a bag (``nmea_msgs/Sentence``, what nmea_navsat_driver's
+``nmea_topic_serial_reader`` publishes) is read as the lines of an NMEA log
+(:func:`read_bag_sentences`; ``virtualgps gap --real run.bag``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +36,12 @@ POSE_TYPES = {
     "sensor_msgs/msg/NavSatFix": "geodetic",
 }
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
+SENTENCE_TYPE = "nmea_msgs/msg/Sentence"
+# ros-drivers/nmea_msgs msg/Sentence.msg; registered for ROS 2 bags that carry no definitions
+_SENTENCE_DEF = "std_msgs/Header header\nstring sentence\n"
+_POSE_KINDS = ("pose", "geometry_msgs/PoseStamped, nav_msgs/Odometry or sensor_msgs/NavSatFix")
+_SENTENCE_KINDS = ("NMEA", "nmea_msgs/Sentence, as nmea_navsat_driver's nmea_topic_serial_reader "
+                   "publishes a receiver's sentences")
 
 
 def is_bag(path: str | Path) -> bool:
@@ -43,6 +55,73 @@ def _bag_paths(p: Path) -> Path:
     if p.suffix in (".db3", ".mcap") and (p.parent / "metadata.yaml").is_file():
         return p.parent
     return p
+
+
+def split_topic(spec: str) -> tuple[str, str | None]:
+    """A log given with its bag topic, ``BAG:TOPIC`` (``run.bag:/fix``), as ``(BAG, TOPIC)``;
+    anything else (a file or folder that exists, a text log) as ``(spec, None)``. ROS names
+    hold no ``:``, so the last one parts them."""
+    base, sep, topic = spec.rpartition(":")
+    if not sep or not topic or Path(spec).exists() or not (is_bag(base) and Path(base).exists()):
+        return spec, None
+    return base, topic
+
+
+def _typestore():
+    """The newest ROS 2 message types, and ``nmea_msgs/Sentence``: ROS 1 bags and newer ROS 2
+    ones bring their own definitions, older ROS 2 bags name the type only."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.LATEST)
+    ts.register(get_types_from_msg(_SENTENCE_DEF, SENTENCE_TYPE))
+    return ts
+
+
+def _messages(p: Path, topic: str | None, types: Iterable[str], kinds: tuple[str, str]):
+    """(msgtype, record time ns, message) of the chosen topic, in the bag's record order.
+
+    Raises
+    ------
+    InputFileError : naming the bag (see :func:`read_bag`)
+    """
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:
+        raise InputFileError(p, "reading ROS bags needs rosbags: pip install "
+                             "'virtualgps[ros]'") from None
+    try:
+        with AnyReader([_bag_paths(p)], default_typestore=_typestore()) as reader:
+            conns = [c for c in reader.connections if c.msgtype in types]
+            chosen = _pick(p, topic, conns, reader.connections, kinds)
+            for conn, stamp_ns, raw in reader.messages(connections=chosen):
+                yield conn.msgtype, stamp_ns, reader.deserialize(raw, conn.msgtype)
+    except InputFileError:
+        raise
+    except Exception as exc:  # rosbags raises its own kinds on a bad bag: name the bag
+        raise InputFileError(p, f"not a readable ROS bag ({exc})") from None
+
+
+def read_bag_sentences(path: str | Path, topic: str | None = None) -> list[str]:
+    """The NMEA sentences of one ``nmea_msgs/Sentence`` topic of a ROS bag, as the lines of a
+    log, in the bag's record order (the order the receiver sent them).
+
+    Parameters
+    ----------
+    path : the bag (see :func:`is_bag`)
+    topic : the topic to read; None: the bag's only ``nmea_msgs/Sentence`` topic
+
+    Returns
+    -------
+    lines : one per sentence (a message holding several lines gives each)
+
+    Raises
+    ------
+    InputFileError : as :func:`read_bag`, for sentence topics
+    """
+    lines: list[str] = []
+    for _, _, msg in _messages(Path(path), topic, (SENTENCE_TYPE,), _SENTENCE_KINDS):
+        lines.extend(str(msg.sentence).replace("\r", "").split("\n"))
+    return lines
 
 
 def read_bag(path: str | Path, topic: str | None = None):
@@ -64,33 +143,18 @@ def read_bag(path: str | Path, topic: str | None = None):
         ``--topic`` (naming them), a topic that is not there or not a pose.
     """
     p = Path(path)
-    try:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise InputFileError(p, "reading ROS bags needs rosbags: pip install "
-                             "'virtualgps[ros]'") from None
-    t, xyz = [], []
-    try:
-        with AnyReader([_bag_paths(p)], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            conns = [c for c in reader.connections if c.msgtype in POSE_TYPES]
-            chosen = _pick(p, topic, conns, reader.connections)
-            frame = POSE_TYPES[chosen[0].msgtype]
-            for conn, stamp_ns, raw in reader.messages(connections=chosen):
-                msg = reader.deserialize(raw, conn.msgtype)
-                row = _position(msg, conn.msgtype)
-                if row is None:
-                    continue
-                st = msg.header.stamp
-                t_s = st.sec + 1e-9 * st.nanosec if (st.sec or st.nanosec) else 1e-9 * stamp_ns
-                t.append(t_s)
-                xyz.append(row)
-    except InputFileError:
-        raise
-    except Exception as exc:  # rosbags raises its own kinds on a bad bag: name the bag
-        raise InputFileError(p, f"not a readable ROS bag ({exc})") from None
+    t, xyz, frames = [], [], set()
+    for msgtype, stamp_ns, msg in _messages(p, topic, POSE_TYPES, _POSE_KINDS):
+        frames.add(POSE_TYPES[msgtype])
+        row = _position(msg, msgtype)
+        if row is None:
+            continue
+        st = msg.header.stamp
+        t.append(st.sec + 1e-9 * st.nanosec if (st.sec or st.nanosec) else 1e-9 * stamp_ns)
+        xyz.append(row)
     if not t:
-        raise InputFileError(p, f"no poses on {chosen[0].topic}")
+        raise InputFileError(p, f"no poses on {topic or 'its pose topic'}")
+    (frame,) = frames  # one topic, one message type
     order = np.argsort(np.asarray(t), kind="stable")  # messages of a topic may interleave
     t_arr = np.asarray(t, dtype=float)[order]
     xyz_arr = np.asarray(xyz, dtype=float)[order]
@@ -99,22 +163,29 @@ def read_bag(path: str | Path, topic: str | None = None):
     return PoseTrack(t_arr[keep], frame, xyz_arr[keep], np.full((keep.sum(), 3), np.nan))
 
 
-def _pick(p: Path, topic: str | None, conns: list, every: list) -> list:
-    """The connections of the chosen topic (one topic may have several connections)."""
+def _pick(p: Path, topic: str | None, conns: list, every: list, kinds: tuple[str, str]
+          ) -> list:
+    """The connections of the chosen topic (one topic may have several connections).
+
+    kinds : (what the topics carry, e.g. ``"pose"``; the message types that carry it, for
+        people)
+    """
+    what, types = kinds
     listing = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in conns})) or "none"
     if topic is not None:
         mine = [c for c in conns if c.topic == topic]
         if not mine:
             other = [c.msgtype for c in every if c.topic == topic]
-            why = f"is a {other[0]}, not a pose" if other else "is not in the bag"
-            raise InputFileError(p, f"topic {topic} {why}; pose topics: {listing}")
+            why = f"is a {other[0]}, not {what}" if other else "is not in the bag"
+            raise InputFileError(p, f"topic {topic} {why}; {what} topics: {listing}")
         return mine
     topics = sorted({c.topic for c in conns})
     if not topics:
-        raise InputFileError(p, "no pose topic (geometry_msgs/PoseStamped, nav_msgs/Odometry or "
-                             "sensor_msgs/NavSatFix)")
+        held = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in every})) or "none"
+        raise InputFileError(p, f"no {what} topic ({types}); it holds: {held}")
     if len(topics) > 1:
-        raise InputFileError(p, f"several pose topics: {listing}; pick one with --topic")
+        raise InputFileError(p, f"several {what} topics: {listing}; pick one with --topic, or "
+                             f"for gap after the bag: {p}:TOPIC")
     return [c for c in conns if c.topic == topics[0]]
 
 
