@@ -11,7 +11,6 @@ pty, with the times they arrived.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -46,6 +45,7 @@ from ardupilot_nmea import (
     parse_degrees,
 )
 from nmea_line import DEVICE_MAX_BACKLOG_S, read_timed
+from nmea_replay import ORIGIN, replay_epochs
 from test_nmea_px4 import FLIGHT_STACK_SENTENCES
 
 from virtualgps.device.nmea import NmeaFormat, nmea_checksum
@@ -53,7 +53,6 @@ from virtualgps.receiver.profiles import load_profile
 
 # --- the device's bytes -----------------------------------------------------------------------
 
-ORIGIN = "52.14,11.64,100"
 T0_UNIX_S = 1717236000.0  # 2024-06-01 10:00:00 UTC: the drive's first pose
 AP_START_MS = 3000  # ArduPilot's first AP_GPS::update, before the receiver's first epoch
 NMEA_PROFILES = ("holux-m1000", "usarsim", "ideal", "phone", "ublox-m8n", "ublox-m9n")
@@ -92,8 +91,9 @@ def drives(tmp_path_factory) -> dict[str, Path]:
 
 
 @dataclass
-class Replay:
-    """One ``virtualgps replay``: each epoch's bytes, its fixes CSV row, the profile's format."""
+class ApReplay:
+    """One ``virtualgps replay`` as ArduPilot's tests read it: each epoch's bytes, its fixes CSV
+    row as numbers, the profile's format, baud and command link."""
 
     name: str
     baud: int
@@ -109,51 +109,28 @@ class Replay:
         return AP_START_MS + lead_ms + (t - t[0]) * 1000.0
 
 
-_REPLAYS: dict[tuple[str, str, float | None, tuple[str, ...] | None], Replay] = {}
+_REPLAYS: dict[tuple[str, str, float | None, tuple[str, ...] | None], ApReplay] = {}
 
 
 def replay(drives: dict[str, Path], name: str, which: str = "full",
-           rate: float | None = None, sentences: tuple[str, ...] | None = None) -> Replay:
-    """``virtualgps replay POSES --profile NAME --scene none --origin ... [--rate R] [--config
-    C] --out X.nmea --fixes X.csv`` (the CLI, in this process; C sets ``[nmea] sentences``),
-    split into epochs at the first sentence."""
+           rate: float | None = None, sentences: tuple[str, ...] | None = None) -> ApReplay:
+    """The profile ``name``'s replay of drive ``which`` (:func:`nmea_replay.replay_epochs`; at
+    ``rate``, else the profile's; ``sentences``, else its own), made once."""
     key = (name, which, rate, sentences)
-    if key in _REPLAYS:
-        return _REPLAYS[key]
-    from virtualgps.cli import main
-
-    stem = drives[which].with_name(f"{name}-{which}-{rate}-{'-'.join(sentences or ['own'])}")
-    argv = ["replay", str(drives[which]), "--profile", name, "--scene", "none", "--origin",
-            ORIGIN, "--out", f"{stem}.nmea", "--fixes", f"{stem}.csv"]
-    if sentences:
-        cfg = Path(f"{stem}.toml")
-        cfg.write_text(f"[nmea]\nsentences = {json.dumps(list(sentences))}\n")
-        argv += ["--config", str(cfg)]
-    assert main(argv + (["--rate", str(rate)] if rate else [])) == 0
-    prof = load_profile(name)
-    fmt = NmeaFormat.from_dict({**prof.nmea, **({"sentences": list(sentences)}
-                                                 if sentences else {})})
-    lines = Path(f"{stem}.nmea").read_bytes().split(b"\r\n")
-    assert lines[-1] == b""
-    first = lines[0][:lines[0].index(b",") + 1]  # e.g. b"$GPGGA,": each epoch starts with it
-    assert first[3:6].decode() == fmt.sentences[0]
-    epochs: list[bytes] = []
-    for line in lines[:-1]:
-        if line.startswith(first):
-            epochs.append(b"")
-        epochs[-1] += line + b"\r\n"
-    with open(f"{stem}.csv", newline="") as f:
+    if key not in _REPLAYS:
+        prof = load_profile(name)
+        rep = replay_epochs(drives[which].parent, drives[which], name, rate or prof.rate_hz,
+                         list(sentences) if sentences else None, tag=f"{which}-")
         rows = [{k: float(v) if v != "" else math.nan for k, v in r.items() if k != "used_prns"}
-                for r in csv.DictReader(f)]
-    assert len(rows) == len(epochs)
-    _REPLAYS[key] = out = Replay(name, prof.baud, rate or prof.rate_hz, fmt, prof.command_link,
-                                 epochs, rows)
-    return out
+                for r in rep.rows]
+        _REPLAYS[key] = ApReplay(name, prof.baud, rep.rate_hz, rep.fmt, prof.command_link,
+                                 rep.epoch_bytes, rows)
+    return _REPLAYS[key]
 
 
 # --- the checks -------------------------------------------------------------------------------
 
-def _check_report(r: Report, run: Replay, e: int, prev_fix: bool) -> None:
+def _check_report(r: Report, run: ApReplay, e: int, prev_fix: bool) -> None:
     """One report against its epoch's fixes CSV row, within what the sentences print, what
     ArduPilot's parsing keeps (its 1e-7 degrees, cm, its knots * 0.514) and the CSV's own digits
     (9 decimals of a degree, 3 of a metre, of m/s and of a DOP, 2 of the course)."""
@@ -240,7 +217,7 @@ def _cross_epoch_sets(wire: Wire) -> list[tuple[float, int, str]]:
     return sorted(out)
 
 
-def _summary(name: str, ap: ArduPilotGps, wire: Wire, run: Replay, spans: dict) -> str:
+def _summary(name: str, ap: ArduPilotGps, wire: Wire, run: ApReplay, spans: dict) -> str:
     det_ms, det_baud, det_epoch = ap.detections[0]
     worst = max(spans, key=spans.get)
     return (f"{name}: detected at {det_baud} baud {(det_ms - AP_START_MS) / 1000:.2f} s after "
@@ -256,7 +233,7 @@ def _summary(name: str, ap: ArduPilotGps, wire: Wire, run: Replay, spans: dict) 
 LEADS_MS = (241.0, 246.0, 251.0, 256.0)
 
 
-def _drive_ardupilot(run: Replay, baud: int | None = None, lead_ms: float = LEADS_MS[0],
+def _drive_ardupilot(run: ApReplay, baud: int | None = None, lead_ms: float = LEADS_MS[0],
                      gps_type: int = GPS_TYPE_NMEA, auto_config: int | None = None,
                      end_ms: float | None = None) -> tuple[ArduPilotGps, Wire]:
     """The replay's bytes on a line at ``baud`` (the profile's), read by the model. GPS_AUTO_CONFIG
@@ -271,7 +248,7 @@ def _drive_ardupilot(run: Replay, baud: int | None = None, lead_ms: float = LEAD
     return ap, wire
 
 
-def _check_every_epoch(run: Replay, baud: int | None = None) -> tuple[ArduPilotGps, Wire, dict]:
+def _check_every_epoch(run: ApReplay, baud: int | None = None) -> tuple[ArduPilotGps, Wire, dict]:
     """At each of LEADS_MS: detected at the line's baud; every epoch the line delivered after the
     one the detector read is reported once, made of that epoch's own GGA, RMC and VTG, as its
     row says; never a timeout. And at any phase and start: no two adjacent epochs' sentences

@@ -27,7 +27,8 @@ from navsat_nmea import (
     check_nmea_checksum,
     parse_nmea_sentence,
 )
-from test_nmea_px4 import run_replay, write_trajectory
+from nmea_replay import replay_epochs
+from test_nmea_px4 import write_trajectory
 
 from virtualgps.device.nmea import nmea_checksum
 from virtualgps.receiver.profiles import load_profile
@@ -96,7 +97,7 @@ def fed(tmp_path_factory):
         if (name, gst) not in cache:
             prof = load_profile(name)
             sentences = ["GST", *prof.nmea["sentences"]] if gst else None
-            cache[name, gst] = _feed(run_replay(tmp, poses, name, prof.rate_hz, sentences))
+            cache[name, gst] = _feed(replay_epochs(tmp, poses, name, prof.rate_hz, sentences))
         return cache[name, gst]
 
     return get

@@ -12,17 +12,16 @@ test feeds the model the bytes of the real daemon as they arrive on a pty.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 from nmea_line import read_timed
+from nmea_replay import ORIGIN, Replay, replay_epochs
 from px4_nmea import (
     PX4_KNOTS_PER_MPS,
     PX4_RX_BUFFER,
@@ -36,10 +35,9 @@ from px4_nmea import (
 
 from virtualgps.device import nmea as nmea_pkg
 
-ORIGIN = "52.14,11.64,100"
 T0_UNIX_S = 1589536800.0  # 2020-05-15 10:00:00 UTC: within a day of a bundled TLE set's epoch
 MIDNIGHT_UNIX_S = 1589587200.0  # 2020-05-16 00:00:00 UTC
-LEAD_S = 0.31  # by default PX4 starts this long before a replay's first epoch (Replay.line)
+LEAD_S = 0.31  # by default PX4 starts this long before a replay's first epoch (device_line)
 #: ``[nmea] sentences`` for a flight stack's NMEA driver (docs/device.md gives them, with
 #: ``--rate 5``): GST before GGA and RMC (PX4 publishes at RMC, with this epoch's GST), GGA and
 #: RMC together (ArduPilot takes any GGA and RMC within 150 ms as one message), no VTG (PX4
@@ -73,66 +71,13 @@ def write_trajectory(path: Path, duration_s: float = 150.0, gap=(95.0, 103.0),
     return path
 
 
-@dataclass
-class Replay:
-    """One replay: per epoch its time, bytes, fixes CSV row and GST sigmas (lat, lon, alt m)."""
-
-    t_unix_s: np.ndarray
-    epoch_bytes: list[bytes]
-    rows: list[dict]
-    sigma_m: np.ndarray | None
-    fmt: nmea_pkg.NmeaFormat
-    rate_hz: float
-
-    def by_utc(self) -> dict[float, int]:
-        """Epoch index by the seconds of its UTC day (as the sentences print it)."""
-        return {round(float(t) % 86400.0, 3): k for k, t in enumerate(self.t_unix_s)}
-
-    def line(self, baud: int, lead_s: float = LEAD_S) -> DeviceLine:
-        """The bytes on a line at ``baud``; PX4 starts ``lead_s`` before the first epoch."""
-        return DeviceLine.from_epochs(self.t_unix_s - self.t_unix_s[0] + lead_s,
-                                      self.epoch_bytes, baud)
+def device_line(rep: Replay, baud: int, lead_s: float = LEAD_S) -> DeviceLine:
+    """A replay's bytes on a line at ``baud``; PX4 starts ``lead_s`` before the first epoch."""
+    return DeviceLine.from_epochs(rep.t_unix_s - rep.t_unix_s[0] + lead_s, rep.epoch_bytes, baud)
 
 
 def _float(s: str) -> float:
     return float(s) if s != "" else math.nan
-
-
-def run_replay(tmp: Path, poses: Path, profile: str, rate_hz: float,
-               sentences: list[str] | None = None) -> Replay:
-    """``virtualgps replay POSES --profile P --scene none --origin ... --rate R --out X.nmea
-    --fixes X.csv [--config C]`` in-process, keeping each epoch's bytes as the writer renders
-    them (``render_batch``), checked against the file."""
-    from virtualgps.cli import main
-
-    name = f"{profile}-{rate_hz:g}-{'-'.join(sentences or ['default'])}"
-    out, fixes = tmp / f"{name}.nmea", tmp / f"{name}.csv"
-    args = ["replay", str(poses), "--profile", profile, "--scene", "none", "--origin", ORIGIN,
-            "--rate", str(rate_hz), "--out", str(out), "--fixes", str(fixes)]
-    if sentences:
-        cfg = tmp / f"{name}.toml"
-        cfg.write_text("[nmea]\nsentences = [" + ", ".join(f'"{s}"' for s in sentences) + "]\n")
-        args += ["--config", str(cfg)]
-    seen, real = [], nmea_pkg.render_batch
-
-    def spy(fixes_, fmt, *a, **k):
-        epochs = real(fixes_, fmt, *a, **k)
-        sig = fixes_.gst_sigma_m() if "GST" in fmt.sentences else None
-        sig = None if sig is None else np.stack([sig["lat_m"], sig["lon_m"], sig["alt_m"]], 1)
-        seen.append((fixes_.t_unix_s.copy(), epochs, sig, fmt))
-        return epochs
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(nmea_pkg, "render_batch", spy)
-        assert main(args) == 0
-    epoch_bytes = [b for _, e, _, _ in seen for b in e]
-    assert b"".join(epoch_bytes) == out.read_bytes()
-    with open(fixes, newline="") as f:
-        rows = list(csv.DictReader(f))
-    t = np.concatenate([s[0] for s in seen])
-    assert len(rows) == len(t) == len(epoch_bytes)
-    sig = None if seen[0][2] is None else np.concatenate([s[2] for s in seen])
-    return Replay(t, epoch_bytes, rows, sig, seen[0][3], rate_hz)
 
 
 @pytest.fixture(scope="module")
@@ -150,7 +95,7 @@ def replays(tmp_path_factory):
             log: str = "long") -> Replay:
         key = (profile, rate_hz, sentences, log)
         if key not in cache:
-            cache[key] = run_replay(tmp, logs[log], profile, rate_hz,
+            cache[key] = replay_epochs(tmp, logs[log], profile, rate_hz,
                                     list(sentences) if sentences else None)
         return cache[key]
 
@@ -303,7 +248,7 @@ def test_at_the_profiles_default_rate_px4_times_out_and_reconnects(replays, prof
     profile's baud."""
     rep = replays(profile, 1.0)
     baud = PROFILE_BAUD[profile]
-    drv = Px4NmeaGps(rep.line(baud))
+    drv = Px4NmeaGps(device_line(rep, baud))
     duration = float(rep.t_unix_s[-1] - rep.t_unix_s[0])
     drv.run(duration + 0.5)
     timeouts = drv.timeouts()
@@ -328,7 +273,7 @@ def test_more_time_to_wait_does_not_save_1_hz(replays):
     500 ms, but the Holux's whole epoch leaves in 0.12 s and the line is then quiet for 0.88 s."""
     rep = replays("holux-m1000", 1.0)
     for kw in ({"dump_comm": True}, {"sat_info": True}):
-        drv = Px4NmeaGps(rep.line(38400), **kw)
+        drv = Px4NmeaGps(device_line(rep, 38400), **kw)
         drv.run(60.0)
         assert len(drv.timeouts()) >= 15, kw
 
@@ -361,7 +306,7 @@ def test_at_5_hz_px4_publishes_every_epoch(replays, profile, baud, gst, outcome,
     at ~0.26 s it keeps the connection, but the device drops epochs and the rest come late."""
     rate_hz = 5.0
     rep = replays(profile, rate_hz, with_gst(profile) if gst else None)
-    line = rep.line(baud, lead_s)
+    line = device_line(rep, baud, lead_s)
     drv = Px4NmeaGps(line)
     duration = float(rep.t_unix_s[-1] - rep.t_unix_s[0])
     drv.run(duration + lead_s + 0.2)
@@ -418,7 +363,7 @@ def test_which_fields_are_one_epoch_old_depends_on_the_sentence_order(replays, p
     GSA, GSV: no VTG, GST before RMC) every profile is published at RMC with everything of one
     epoch."""
     rep = replays(profile, 5.0, with_gst(profile))
-    drv = Px4NmeaGps(rep.line(115200))
+    drv = Px4NmeaGps(device_line(rep, 115200))
     drv.run(60.0)
     lag = check_reports(drv, rep)
     if profile == "holux-m1000":
@@ -429,7 +374,7 @@ def test_which_fields_are_one_epoch_old_depends_on_the_sentence_order(replays, p
         assert lag["vel_n_m_s"] == lag["time_utc_usec"] == 0
     rep = replays(profile, 5.0, FLIGHT_STACK_SENTENCES)
     for lead_s in (0.0, 0.13, 0.5, 0.93):  # (phases of PX4's reads against the epochs)
-        drv = Px4NmeaGps(rep.line(PROFILE_BAUD[profile] if profile == "holux-m1000"
+        drv = Px4NmeaGps(device_line(rep, PROFILE_BAUD[profile] if profile == "holux-m1000"
                                   else 115200, lead_s))
         drv.run(60.0)
         assert not drv.timeouts()
@@ -450,7 +395,7 @@ def test_a_configured_baud_connects_at_once(replays):
     """SER_GPS1_BAUD set to the device's baud: configure's first receive(400) finds a position
     at it (no probing of the other bauds), and the reports are those of the probing run."""
     rep = replays("holux-m1000", 5.0, with_gst("holux-m1000"))
-    drv = Px4NmeaGps(rep.line(38400), configured_baud=38400)
+    drv = Px4NmeaGps(device_line(rep, 38400), configured_baud=38400)
     drv.run(60.0)
     _, t0, t1, baud, found = drv.events[0]
     assert baud == found == 38400 and t1 - t0 < 0.45 and not drv.timeouts()
@@ -464,7 +409,7 @@ def test_utc_midnight_costs_px4_one_reconnect(replays):
     epochs lost at each UTC midnight. PX4's, with any receiver; noted here so that a run across
     midnight is not taken for a fault of the device."""
     rep = replays("holux-m1000", 5.0, with_gst("holux-m1000"), "midnight")
-    drv = Px4NmeaGps(rep.line(38400))
+    drv = Px4NmeaGps(device_line(rep, 38400))
     drv.run(30.5)
     midnight_s = MIDNIGHT_UNIX_S - rep.t_unix_s[0] + LEAD_S
     (t_out,) = drv.timeouts()
