@@ -4,11 +4,16 @@ clock offset found or said."""
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
 
+from virtualgps.exceptions import InputFileError
 from virtualgps.gap import effects as fx
 from virtualgps.gap import where
 from virtualgps.gap.ingest import estimate_time_offset_s, load_run, parse_truth, read_real_log
@@ -333,6 +338,73 @@ def test_a_phone_log_kept_by_gnsslogger_reads_as_its_nmea(shared_data, tmp_path)
     np.testing.assert_array_equal(ep.alt_msl_m, ref.alt_msl_m)
     assert skipped["not_nmea"] == sum(1 for line in kept if not line.startswith("NMEA,"))
     assert {k: n for k, n in skipped.items() if k != "not_nmea"} == ref_skipped
+
+
+GPSFAKE = shutil.which("gpsfake")
+
+
+@pytest.mark.skipif(GPSFAKE is None and not os.environ.get("CI"), reason="gpsd not installed")
+@pytest.mark.parametrize("profile", ["holux-m1000", "ublox-m8n"])
+def test_a_gpsd_json_log_reads_as_its_nmea(tmp_path, profile):
+    """A robot that runs gpsd keeps ``gpspipe -w``'s JSON: gpsd 3.22 itself (gpsfake) fed a
+    replay's NMEA, in the MTK order (holux-m1000) and u-blox's (RMC first, GN talkers, GPS and
+    GLONASS), reports TPVs and SKYs that read as the same epochs as the NMEA: times, positions
+    to gpsd's 1e-9 degrees, altitudes, fix quality and mode, DOPs, satellites used and in
+    view, and each satellite's elevation, C/N0 and use; the first cycles, which gpsd reports
+    before RMC dates them, are counted as TPVs without a time."""
+    assert GPSFAKE, "gpsd-clients must be installed in CI (the README's test command does)"
+    from virtualgps.cli import main
+
+    poses = tmp_path / "drive.jsonl"
+    poses.write_text("".join(json.dumps({"t": 1589536800.0 + 0.1 * i, "x": 0.15 * i, "y": 0.0,
+                                         "z": 0.0}) + "\n" for i in range(401)))
+    nmea, log = tmp_path / "drive.nmea", tmp_path / "drive.json"
+    assert main(["replay", str(poses), "--profile", profile, "--scene", "none", "--origin",
+                 "52.14,11.64,100", "--out", str(nmea)]) == 0
+    with open(log, "w") as f:
+        subprocess.run([GPSFAKE, "-1", "-q", "-p", "-c", "0.01", "-r",
+                        '?WATCH={"enable":true,"json":true}', str(nmea)], stdout=f,
+                       stderr=subprocess.DEVNULL, timeout=120, check=True)
+    ref, _, _, _ = read_real_log(nmea)
+    got, skipped, objects, dated_by = read_real_log(log)
+    assert objects["TPV"] > len(got) >= len(ref) - 4 and objects["SKY"] >= len(got)
+    assert skipped["tpv_without_time"] >= 1 and dated_by == "log"
+    t, i, j = np.intersect1d(ref.t_unix_s, got.t_unix_s, return_indices=True)
+    assert t.size == len(got)
+    np.testing.assert_allclose(got.lat_deg[j], ref.lat_deg[i], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.lon_deg[j], ref.lon_deg[i], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got.speed_mps[j], ref.speed_mps[i], rtol=0, atol=1e-3)
+    for name in ("alt_msl_m", "geoid_sep_m", "quality", "mode", "hdop", "pdop", "vdop",
+                 "sats_used", "sats_in_view", "prn"):
+        a, b = getattr(got, name), getattr(ref, name)
+        np.testing.assert_array_equal(a if name == "prn" else a[j],
+                                      b if name == "prn" else b[i], err_msg=name)
+    for name in ("el_deg", "az_deg", "cn0_dbhz", "used", "in_view"):
+        np.testing.assert_array_equal(getattr(got, name)[j], getattr(ref, name)[i],
+                                      err_msg=name)
+    run = load_run(log, "static")
+    assert run.has_gsv and run.has_cn0 and run.has_gsa and run.sentences["TPV"] > 0
+
+
+def test_gpsd_json_of_several_devices_or_with_time_stamps(tmp_path):
+    """``gpspipe -t`` puts a time stamp before each object: read past it. A log holding the
+    fixes of two devices is one clear error naming them."""
+    tpv = {"class": "TPV", "device": "/dev/ttyACM0", "mode": 3, "lat": 52.14, "lon": 11.64,
+           "altMSL": 50.0, "altHAE": 94.0}
+    lines = [f"Dec 07 16:00:{k:02d}: " + json.dumps(tpv | {"time": f"2026-12-07T16:00:{k:02d}Z",
+                                                          "lat": 52.14 + 1e-6 * k})
+             for k in range(5)]
+    p = tmp_path / "t.json"
+    p.write_text("\n".join(lines) + "\n")
+    ep, skipped, objects, _ = read_real_log(p)
+    assert len(ep) == 5 and objects == {"TPV": 5} and not skipped
+    np.testing.assert_allclose(ep.lat_deg, 52.14 + 1e-6 * np.arange(5))
+    np.testing.assert_array_equal(ep.quality, 1)
+    assert np.isnan(ep.hdop).all() and (ep.sats_used == -1).all()  # no SKY: not known
+    other = json.dumps(tpv | {"device": "/dev/ttyUSB1", "time": "2026-12-07T16:00:09Z"})
+    p.write_text("\n".join(lines + [other]) + "\n")
+    with pytest.raises(InputFileError, match="several devices .*/dev/ttyACM0, /dev/ttyUSB1"):
+        read_real_log(p)
 
 
 def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_data):

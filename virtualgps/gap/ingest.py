@@ -1,4 +1,6 @@
 """Real runs for the gap tool: a real receiver's NMEA log and its truth, read as they come.
+(gpsd's JSON of a receiver, ``gpspipe -w``, is read by :mod:`virtualgps.gap.gpsdlog` into the
+same epochs; a ROS bag's ``nmea_msgs/Sentence`` topic as the lines of a log.)
 
 Logs are read the way receivers and loggers write them (:func:`virtualgps.device.nmea.
 nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
@@ -32,6 +34,7 @@ from virtualgps.device.nmea import (
     read_text_lines,
 )
 from virtualgps.exceptions import ConfigError, InputFileError
+from virtualgps.gap import gpsdlog
 from virtualgps.gap.metrics import median_position
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose, rosbag
@@ -167,7 +170,8 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
     a fix that lie more than :data:`CLOCK_JUMP_S` apart from those with one are left out
     (``epochs_clock_not_set``).
 
-    path : a text log, or a ROS bag whose ``nmea_msgs/Sentence`` topic holds the sentences
+    path : a text log (NMEA, or gpsd's JSON: :mod:`virtualgps.gap.gpsdlog`), or a ROS bag
+        whose ``nmea_msgs/Sentence`` topic holds the sentences
     near_unix_s : UTC seconds near the log's start (its truth's first pose), which dates a log
         that no RMC or ZDA dates (a GGA-only log): its first epoch goes on the day that puts it
         nearest this time. None: such a log is an error.
@@ -192,23 +196,11 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
     if not any(ln.strip() for ln in lines):
         raise InputFileError(path, "the log is empty")
-    tally: Counter = Counter()
-    near_date = (None if near_unix_s is None
-                 else datetime.fromtimestamp(near_unix_s, UTC).date())
-    try:
-        ep = nmea_epochs_from_lines(lines, path, near_date, tally)
-    except UndatedLogError:
-        raise InputFileError(path, "no RMC or ZDA sentence gives the date of its epochs; "
-                             "give a log with RMC or ZDA lines, or a truth pose log whose "
-                             "times date it (--truth static cannot)") from None
-    dated_by = "log" if ep.dated else "truth"
-    if not ep.dated:
-        ep = _dated_near(ep, near_unix_s)
-    sentences, skipped = _census(tally)
-    if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
-        raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes")
-    if ep.n_bad > sum(skipped.values()):
-        skipped["malformed_fields"] = ep.n_bad - skipped["bad_checksum"] - skipped["truncated"]
+    if gpsdlog.holds_gpsd_fixes(lines):
+        ep, sentences, skipped = gpsdlog.gpsd_epochs(lines, path)
+        dated_by = "log"
+    else:
+        ep, sentences, skipped, dated_by = _read_nmea(lines, path, near_unix_s)
     ok = np.isfinite(ep.t_unix_s)
     order = np.argsort(np.where(ok, ep.t_unix_s, np.inf), kind="stable")
     order = order[ok[order]]
@@ -217,9 +209,6 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
     if (~first).any():
         skipped["duplicate_epoch"] = int((~first).sum())
     ep = take_epochs(ep, order[first])
-    if not sentences["GGA"]:
-        # RMC or GLL alone: a position with status A is a fix (of quality unknown: 1)
-        ep = replace(ep, quality=np.where(np.isfinite(ep.lat_deg), 1, 0).astype(np.int8))
     fix = (ep.quality > 0) & np.isfinite(ep.lat_deg)
     if not fix.any():
         raise InputFileError(path, "no epoch of the log has a fix (GGA quality > 0 with a "
@@ -235,6 +224,34 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
                              "run is one session of a receiver; give each session as its own "
                              "--real log")
     return ep, {k: int(v) for k, v in skipped.items() if v}, dict(sentences), dated_by
+
+
+def _read_nmea(lines: list[str], path: str | Path, near_unix_s: float | None
+               ) -> tuple[NmeaEpochs, Counter, Counter, str]:
+    """The epochs of an NMEA log in file order, its sentences per type, the lines skipped by
+    reason and what dated it (see :func:`read_real_log`)."""
+    tally: Counter = Counter()
+    near_date = (None if near_unix_s is None
+                 else datetime.fromtimestamp(near_unix_s, UTC).date())
+    try:
+        ep = nmea_epochs_from_lines(lines, path, near_date, tally)
+    except UndatedLogError:
+        raise InputFileError(path, "no RMC or ZDA sentence gives the date of its epochs; "
+                             "give a log with RMC or ZDA lines, or a truth pose log whose "
+                             "times date it (--truth static cannot)") from None
+    dated_by = "log" if ep.dated else "truth"
+    if not ep.dated:
+        ep = _dated_near(ep, near_unix_s)
+    sentences, skipped = _census(tally)
+    if not (sentences["GGA"] or sentences["RMC"] or sentences["GLL"]):
+        raise InputFileError(path, "no GGA, RMC or GLL sentence: not an NMEA log of fixes "
+                             "(nor a gpsd JSON log: no TPV)")
+    if ep.n_bad > sum(skipped.values()):
+        skipped["malformed_fields"] = ep.n_bad - skipped["bad_checksum"] - skipped["truncated"]
+    if not sentences["GGA"]:
+        # RMC or GLL alone: a position with status A is a fix (of quality unknown: 1)
+        ep = replace(ep, quality=np.where(np.isfinite(ep.lat_deg), 1, 0).astype(np.int8))
+    return ep, sentences, skipped, dated_by
 
 
 def ingest_notes(run: dict) -> list[str]:
