@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from virtualgps import geodesy
+from virtualgps.exceptions import InputFileError
 
 pytest.importorskip("rosbags")
 
@@ -217,9 +218,55 @@ def test_a_receivers_sentences_in_a_bag_are_diagnosed_as_its_log(tmp_path):
     # the truth's bag holds two pose topics: one must be named; no sentence topic, one error
     r = gap(bag, bag, "x")
     assert r.returncode == 2 and "several pose topics" in r.stderr and ":TOPIC" in r.stderr
-    r = gap(f"{bag}:/fix", walk, "x")
-    assert r.returncode == 2 and "/fix is a sensor_msgs/msg/NavSatFix, not NMEA" in r.stderr
-    poses_only = write_bag(tmp_path / "poses.bag", {"/fix": "fix"}, "bag")
+    poses_only = write_bag(tmp_path / "poses.bag", {"/pose": "pose"}, "bag")
     r = gap(poses_only, walk, "x")
-    assert r.returncode == 2 and "no NMEA topic (nmea_msgs/Sentence" in r.stderr
-    assert "/fix (sensor_msgs/msg/NavSatFix)" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "no receiver topic (nmea_msgs/Sentence" in r.stderr
+    assert "/pose (geometry_msgs/msg/PoseStamped)" in r.stderr and "Traceback" not in r.stderr
+    r = gap(f"{poses_only}:/pose", walk, "x")
+    assert r.returncode == 2 and "/pose is a geometry_msgs/msg/PoseStamped, not a receiver" in (
+        r.stderr)
+
+
+def test_a_receivers_navsatfix_in_a_bag_is_its_fixes(tmp_path):
+    """A robot that records only the driver's ``fix`` (sensor_msgs/NavSatFix): read as the
+    receiver's epochs, those without a fix (status -1) included, the height above the
+    ellipsoid kept (altitude above EGM96 plus the separation); ``run.bag:/gps/fix`` picks it
+    beside the truth's NavSatFix. Its times are the messages' stamps."""
+    from virtualgps.gap.ingest import load_run, read_real_log
+
+    walk = _jsonl(tmp_path / "walk.jsonl", geodetic=True)
+    log = tmp_path / "walk.nmea"
+    assert _replay(walk, log, "--scene", "none").returncode == 0
+    ref = read_real_log(log)[0]
+    hae = ref.alt_msl_m + ref.geoid_sep_m
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    m = ts.types
+    bag = tmp_path / "fixes"
+    with Writer2(bag, version=9) as w:
+        conn = w.add_connection("/gps/fix", TYPES["fix"], typestore=ts)
+        for k, t in enumerate(ref.t_unix_s):
+            fix = ref.quality[k] > 0
+            msg = m["sensor_msgs/msg/NavSatFix"](
+                header=_stamp(ts, t, False),
+                status=m["sensor_msgs/msg/NavSatStatus"](status=0 if fix else -1, service=1),
+                latitude=ref.lat_deg[k] if fix else np.nan,
+                longitude=ref.lon_deg[k] if fix else np.nan, altitude=hae[k] if fix else np.nan,
+                position_covariance=np.zeros(9), position_covariance_type=0)
+            w.write(conn, int(t * 1e9) + 80_000_000, ts.serialize_cdr(msg, TYPES["fix"]))
+        conn = w.add_connection("/ground_truth", TYPES["fix"], typestore=ts)
+        for t, msg in _messages(ts, "fix", False):
+            w.write(conn, int(t * 1e9), ts.serialize_cdr(msg, TYPES["fix"]))
+    got, skipped, records, dated_by = read_real_log(bag, topic="/gps/fix")
+    assert records == {"NavSatFix": len(ref)} and not skipped and dated_by == "log"
+    np.testing.assert_array_equal(got.t_unix_s, ref.t_unix_s)
+    np.testing.assert_array_equal(got.quality, np.where(ref.quality > 0, 1, 0))
+    fix = ref.quality > 0
+    assert fix.sum() >= len(ref) - 3 and np.isnan(got.lat_deg[~fix]).all()
+    np.testing.assert_array_equal(got.lat_deg[fix], ref.lat_deg[fix])
+    np.testing.assert_allclose((got.alt_msl_m + got.geoid_sep_m)[fix], hae[fix], rtol=0,
+                               atol=1e-9)
+    assert got.prn.size == 0 and (got.sats_used == -1).all()
+    run = load_run(f"{bag}:/gps/fix", f"{bag}:/ground_truth")
+    assert run.name == "fixes" and not run.has_gsv and run.sentences == {"NavSatFix": len(ref)}
+    with pytest.raises(InputFileError, match="several receiver topics"):
+        read_real_log(bag)

@@ -171,11 +171,11 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
     (``epochs_clock_not_set``).
 
     path : a text log (NMEA, or gpsd's JSON: :mod:`virtualgps.gap.gpsdlog`), or a ROS bag
-        whose ``nmea_msgs/Sentence`` topic holds the sentences
+        of the receiver's sentences or fixes (:func:`virtualgps.poses.rosbag.read_bag_receiver`)
     near_unix_s : UTC seconds near the log's start (its truth's first pose), which dates a log
         that no RMC or ZDA dates (a GGA-only log): its first epoch goes on the day that puts it
         nearest this time. None: such a log is an error.
-    topic : the bag's sentence topic (None: its only one)
+    topic : the bag's receiver topic (None: its only sentence topic, else NavSatFix topic)
 
     Returns
     -------
@@ -190,17 +190,19 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
         or fixes spanning more than :data:`MAX_RUN_SPAN_S` (one clear line)
     """
     try:
-        lines = (rosbag.read_bag_sentences(path, topic) if rosbag.is_bag(path)
-                 else read_text_lines(path))
+        got = (rosbag.read_bag_receiver(path, topic) if rosbag.is_bag(path)
+               else read_text_lines(path))
     except OSError as e:
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
-    if not any(ln.strip() for ln in lines):
+    dated_by = "log"
+    if isinstance(got, rosbag.BagFixes):
+        ep, sentences, skipped = _navsatfix_epochs(got), Counter(NavSatFix=got.status.size), {}
+    elif not any(ln.strip() for ln in got):
         raise InputFileError(path, "the log is empty")
-    if gpsdlog.holds_gpsd_fixes(lines):
-        ep, sentences, skipped = gpsdlog.gpsd_epochs(lines, path)
-        dated_by = "log"
+    elif gpsdlog.holds_gpsd_fixes(got):
+        ep, sentences, skipped = gpsdlog.gpsd_epochs(got, path)
     else:
-        ep, sentences, skipped, dated_by = _read_nmea(lines, path, near_unix_s)
+        ep, sentences, skipped, dated_by = _read_nmea(got, path, near_unix_s)
     ok = np.isfinite(ep.t_unix_s)
     order = np.argsort(np.where(ok, ep.t_unix_s, np.inf), kind="stable")
     order = order[ok[order]]
@@ -252,6 +254,33 @@ def _read_nmea(lines: list[str], path: str | Path, near_unix_s: float | None
         # RMC or GLL alone: a position with status A is a fix (of quality unknown: 1)
         ep = replace(ep, quality=np.where(np.isfinite(ep.lat_deg), 1, 0).astype(np.int8))
     return ep, sentences, skipped, dated_by
+
+
+# sensor_msgs/NavSatStatus status -> GGA quality: no fix, fix, SBAS (DGPS), GBAS (RTK)
+_NAVSAT_QUALITY = {-1: 0, 0: 1, 1: 2, 2: 4}
+#: what a real log's records are called where they hold an altitude and a fix quality (GGA's
+#: fields): logs of RMC or GLL alone lack both
+FULL_FIX_RECORDS = ("GGA", "TPV", "NavSatFix")
+
+
+def _navsatfix_epochs(fixes: rosbag.BagFixes) -> NmeaEpochs:
+    """The epochs of a receiver's NavSatFix messages: positions, heights (above the ellipsoid:
+    kept as EGM96 altitude plus separation) and fix qualities; no satellites, DOPs or speeds."""
+    n = fixes.status.size
+    nan = np.full(n, np.nan)
+    sep = geodesy.geoid_sep_m(np.nan_to_num(fixes.lat_deg), np.nan_to_num(fixes.lon_deg))
+    none = np.full(n, -1, np.int64)
+    empty = np.zeros((n, 0))
+    return NmeaEpochs(
+        t_unix_s=fixes.t_unix_s, lat_deg=fixes.lat_deg, lon_deg=fixes.lon_deg,
+        alt_msl_m=fixes.alt_hae_m - sep, geoid_sep_m=sep,
+        quality=np.array([_NAVSAT_QUALITY.get(int(s), 1) for s in fixes.status], np.int8),
+        mode=np.zeros(n, np.int8), hdop=nan, pdop=nan, vdop=nan, speed_mps=nan,
+        course_deg=nan, sats_used=none, sats_used_gga=none, sats_used_gsa=none,
+        sats_in_view=none, gsv_complete=np.zeros(n, bool), prn=np.zeros(0, np.int64),
+        el_deg=empty, az_deg=empty, cn0_dbhz=empty, in_view=empty.astype(bool),
+        used=empty.astype(bool), line=np.arange(1, n + 1), n_bad=0,
+    )
 
 
 def ingest_notes(run: dict) -> list[str]:

@@ -15,6 +15,7 @@ import numpy as np
 
 from virtualgps import geodesy
 from virtualgps.gap.ensemble import Ensemble, Geometry, RunSetup, geometry_job, setup_digest
+from virtualgps.gap.ingest import FULL_FIX_RECORDS
 from virtualgps.gap.jobs import map_jobs
 from virtualgps.gap.observed import Obs, RunView, position_quantum_min, printed_step, quantize
 from virtualgps.gap.where import SKY_BIN_AZ_DEG, SKY_BIN_EL_DEG, errors_enu
@@ -199,10 +200,9 @@ def prepare_runs(
             truth_lat_deg=lat, truth_lon_deg=lon, truth_alt_hae_m=alt, reference=reference,
             vel_enu_mps=setup.vel_enu_mps, near_building=(geom.crosses_building & above).any(1),
             prn=geom.prn, az_deg=geom.az_deg.astype(float), el_deg=el, sat_ok=sat_ok,
-            # "gga": altitudes and fix qualities known (GGA's, or a gpsd log's TPVs)
             assess={"gsv": bool(run.has_gsv), "cn0": bool(run.has_cn0),
                     "gsa": bool(run.has_gsa),
-                    "gga": bool(run.sentences.get("GGA") or run.sentences.get("TPV"))},
+                    "gga": any(run.sentences.get(k) for k in FULL_FIX_RECORDS)},
             real=real, quantum_min=position_quantum_min(real.lat_deg[0], real.lon_deg[0]),
             hdop_step=printed_step(np.where(ep.quality > 0, ep.hdop, np.nan)),
             alt_step_m=printed_step(np.where(ep.quality > 0, ep.alt_msl_m, np.nan)),

@@ -14,15 +14,17 @@ where the stamp is zero. ``--topic`` picks one topic where several fit; without 
 several candidates is an error naming them. ``gap``, which takes several logs, names the topic
 after the bag, ``run.bag:/ground_truth`` (:func:`split_topic`).
 
-A real receiver's NMEA kept in a bag (``nmea_msgs/Sentence``, what nmea_navsat_driver's
-``nmea_topic_serial_reader`` publishes) is read as the lines of an NMEA log
-(:func:`read_bag_sentences`; ``virtualgps gap --real run.bag``).
+A real receiver kept in a bag is read by :func:`read_bag_receiver` (``virtualgps gap --real
+run.bag``): its NMEA (``nmea_msgs/Sentence``, what nmea_navsat_driver's
+``nmea_topic_serial_reader`` publishes) as the lines of an NMEA log, else its
+``sensor_msgs/NavSatFix`` fixes, messages without a fix included.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,11 +39,13 @@ POSE_TYPES = {
 }
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 SENTENCE_TYPE = "nmea_msgs/msg/Sentence"
+NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
 # ros-drivers/nmea_msgs msg/Sentence.msg; registered for ROS 2 bags that carry no definitions
 _SENTENCE_DEF = "std_msgs/Header header\nstring sentence\n"
 _POSE_KINDS = ("pose", "geometry_msgs/PoseStamped, nav_msgs/Odometry or sensor_msgs/NavSatFix")
-_SENTENCE_KINDS = ("NMEA", "nmea_msgs/Sentence, as nmea_navsat_driver's nmea_topic_serial_reader "
-                   "publishes a receiver's sentences")
+_RECEIVER_KINDS = ("receiver", "nmea_msgs/Sentence, as nmea_navsat_driver's "
+                   "nmea_topic_serial_reader publishes a receiver's sentences, or "
+                   "sensor_msgs/NavSatFix")
 
 
 def is_bag(path: str | Path) -> bool:
@@ -77,6 +81,16 @@ def _typestore():
     return ts
 
 
+def _reader(p: Path):
+    """A rosbags reader of the bag, not yet opened (InputFileError without rosbags)."""
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:
+        raise InputFileError(p, "reading ROS bags needs rosbags: pip install "
+                             "'virtualgps[ros]'") from None
+    return AnyReader([_bag_paths(p)], default_typestore=_typestore())
+
+
 def _messages(p: Path, topic: str | None, types: Iterable[str], kinds: tuple[str, str]):
     """(msgtype, record time ns, message) of the chosen topic, in the bag's record order.
 
@@ -85,12 +99,7 @@ def _messages(p: Path, topic: str | None, types: Iterable[str], kinds: tuple[str
     InputFileError : naming the bag (see :func:`read_bag`)
     """
     try:
-        from rosbags.highlevel import AnyReader
-    except ImportError:
-        raise InputFileError(p, "reading ROS bags needs rosbags: pip install "
-                             "'virtualgps[ros]'") from None
-    try:
-        with AnyReader([_bag_paths(p)], default_typestore=_typestore()) as reader:
+        with _reader(p) as reader:
             conns = [c for c in reader.connections if c.msgtype in types]
             chosen = _pick(p, topic, conns, reader.connections, kinds)
             for conn, stamp_ns, raw in reader.messages(connections=chosen):
@@ -101,27 +110,77 @@ def _messages(p: Path, topic: str | None, types: Iterable[str], kinds: tuple[str
         raise InputFileError(p, f"not a readable ROS bag ({exc})") from None
 
 
-def read_bag_sentences(path: str | Path, topic: str | None = None) -> list[str]:
-    """The NMEA sentences of one ``nmea_msgs/Sentence`` topic of a ROS bag, as the lines of a
-    log, in the bag's record order (the order the receiver sent them).
+@dataclass(frozen=True)
+class BagFixes:
+    """A receiver's ``sensor_msgs/NavSatFix`` messages, in the bag's record order: (n,) arrays.
+
+    t_unix_s : header stamps (the record time where a stamp is zero), UTC seconds
+    lat_deg, lon_deg, alt_hae_m : the fix (REP 145: height above the WGS-84 ellipsoid); NaN
+        without one
+    status : ``status.status``: -1 no fix, 0 fix, 1 SBAS, 2 GBAS
+    """
+
+    t_unix_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_hae_m: np.ndarray
+    status: np.ndarray
+
+
+def read_bag_receiver(path: str | Path, topic: str | None = None) -> list[str] | BagFixes:
+    """A real receiver's output kept in a ROS bag: the sentences of its ``nmea_msgs/Sentence``
+    topic as the lines of a log, in the bag's record order (the order the receiver sent them),
+    or, in a bag without sentences (or with ``topic`` one), the fixes of its
+    ``sensor_msgs/NavSatFix`` topic (all its messages: those without a fix are epochs too).
 
     Parameters
     ----------
     path : the bag (see :func:`is_bag`)
-    topic : the topic to read; None: the bag's only ``nmea_msgs/Sentence`` topic
+    topic : the topic to read; None: the bag's only sentence topic, else its only NavSatFix one
 
     Returns
     -------
-    lines : one per sentence (a message holding several lines gives each)
+    lines (one per sentence; a message holding several lines gives each), or BagFixes
 
     Raises
     ------
-    InputFileError : as :func:`read_bag`, for sentence topics
+    InputFileError : as :func:`read_bag`, for receiver topics
     """
+    p = Path(path)
+    held = _topics(p)
+    sentences = topic is None and any(t == SENTENCE_TYPE for t in held.values())
+    types = (SENTENCE_TYPE,) if sentences else (SENTENCE_TYPE, NAVSATFIX_TYPE)
     lines: list[str] = []
-    for _, _, msg in _messages(Path(path), topic, (SENTENCE_TYPE,), _SENTENCE_KINDS):
-        lines.extend(str(msg.sentence).replace("\r", "").split("\n"))
-    return lines
+    fixes: list[tuple[float, float, float, float, int]] = []
+    for msgtype, stamp_ns, msg in _messages(p, topic, types, _RECEIVER_KINDS):
+        if msgtype == SENTENCE_TYPE:
+            lines.extend(str(msg.sentence).replace("\r", "").split("\n"))
+            continue
+        t = _stamp_s(msg, stamp_ns)
+        ok = msg.status.status >= 0
+        pos = (float(msg.latitude), float(msg.longitude), float(msg.altitude))
+        fixes.append((t, *(pos if ok else (math.nan,) * 3), int(msg.status.status)))
+    if not fixes:
+        return lines
+    a = np.array(fixes, dtype=float)
+    return BagFixes(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(np.int8))
+
+
+def _stamp_s(msg, record_ns: int) -> float:
+    """A message's time, UTC seconds: its header stamp, or its record time where that is 0."""
+    st = msg.header.stamp
+    return st.sec + 1e-9 * st.nanosec if (st.sec or st.nanosec) else 1e-9 * record_ns
+
+
+def _topics(p: Path) -> dict[str, str]:
+    """{topic: message type} of a bag (InputFileError naming it where it is unreadable)."""
+    try:
+        with _reader(p) as reader:
+            return {c.topic: c.msgtype for c in reader.connections}
+    except InputFileError:
+        raise
+    except Exception as exc:  # rosbags raises its own kinds on a bad bag: name the bag
+        raise InputFileError(p, f"not a readable ROS bag ({exc})") from None
 
 
 def read_bag(path: str | Path, topic: str | None = None):
@@ -149,8 +208,7 @@ def read_bag(path: str | Path, topic: str | None = None):
         row = _position(msg, msgtype)
         if row is None:
             continue
-        st = msg.header.stamp
-        t.append(st.sec + 1e-9 * st.nanosec if (st.sec or st.nanosec) else 1e-9 * stamp_ns)
+        t.append(_stamp_s(msg, stamp_ns))
         xyz.append(row)
     if not t:
         raise InputFileError(p, f"no poses on {topic or 'its pose topic'}")
@@ -176,7 +234,7 @@ def _pick(p: Path, topic: str | None, conns: list, every: list, kinds: tuple[str
         mine = [c for c in conns if c.topic == topic]
         if not mine:
             other = [c.msgtype for c in every if c.topic == topic]
-            why = f"is a {other[0]}, not {what}" if other else "is not in the bag"
+            why = f"is a {other[0]}, not a {what} topic" if other else "is not in the bag"
             raise InputFileError(p, f"topic {topic} {why}; {what} topics: {listing}")
         return mine
     topics = sorted({c.topic for c in conns})
