@@ -28,6 +28,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 import pytest
+from nmea_line import read_timed
 from pyubx2 import UBXReader
 from pyubx2.ubxtypes_configdb import UBX_CONFIG_DATABASE
 from ubx_uart import (
@@ -733,18 +734,11 @@ def test_px4_m9_valset_sequence_on_the_daemon(tmp_path):
             assert ver[30:40] == b"00190000\0\0" and b"MOD=NEO-M9N" in ver[40:]
             # receive: NAV-PVT with its arrival time, for 3 s
             arrivals, stream = [], []
-            t_end = time.monotonic() + 3.0
-            while (left := t_end - time.monotonic()) > 0:
-                if select.select([fd], [], [], left)[0]:
-                    try:
-                        data = os.read(fd, 65536)
-                    except BlockingIOError:
-                        continue
-                    now = time.monotonic()
-                    for c, i, p in scanner.feed(data):
-                        stream.append((c, i, p))
-                        if (c, i) == (CLS_NAV, NAV_PVT):
-                            arrivals.append((now, p))
+            for now, data in read_timed(fd, 3.0):
+                for c, i, p in scanner.feed(data):
+                    stream.append((c, i, p))
+                    if (c, i) == (CLS_NAV, NAV_PVT):
+                        arrivals.append((now, p))
         finally:
             os.close(fd)
     finally:

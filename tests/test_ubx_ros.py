@@ -20,7 +20,6 @@ at 0b8e122a (40 bytes, version 0). ROS 1's ``UbloxFirmware9`` is ``UbloxFirmware
 from __future__ import annotations
 
 import os
-import select
 import struct
 import time
 from dataclasses import dataclass, field
@@ -28,6 +27,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 import pytest
+from nmea_line import read_timed
 from ubx_uart import (
     ACK_ACK,
     ALT0_M,
@@ -410,19 +410,12 @@ def test_ublox_gps_m9_sequence_on_the_daemon(tmp_path):
             # leaves them alone)
             assert enabled == {"gps", "glonass", "galileo", "beidou"}
             drv = RosUblox(Module("M9"), baud=38400)
-            t_end = time.monotonic() + 12.0  # (3 s of fixes after the receiver's start-up)
-            while (left := t_end - time.monotonic()) > 0 and sum(
-                    f["fix"] for f in drv.fixes) < 12:
-                if select.select([fd], [], [], left)[0]:
-                    try:
-                        data = os.read(fd, 65536)
-                    except BlockingIOError:
-                        continue
-                    now = time.time()
-                    for c, i, p in scanner.feed(data):
-                        if (c, i) == (CLS_NAV, NAV_PVT):
-                            drv.t = now - T0_UNIX_S
-                            drv.fixes.append(drv.nav_sat_fix(p))
+            wall0 = time.time()
+            for rel_s, data in read_timed(fd, 8.0):  # (the receiver's start-up, then fixes)
+                for c, i, p in scanner.feed(data):
+                    if (c, i) == (CLS_NAV, NAV_PVT):
+                        drv.t = wall0 + rel_s - T0_UNIX_S
+                        drv.fixes.append(drv.nav_sat_fix(p))
         finally:
             os.close(fd)
     finally:
@@ -431,7 +424,7 @@ def test_ublox_gps_m9_sequence_on_the_daemon(tmp_path):
     # the receiver's start-up (the profile's TTFF) may take the first; then every one a fix
     first = next(k for k, f in enumerate(drv.fixes) if f["fix"])
     fixed = drv.fixes[first:]
-    assert len(fixed) == 12 and all(f["fix"] for f in fixed)
+    assert len(fixed) >= 12 and all(f["fix"] for f in fixed)  # 3 s or more of them
     rate_hz = (len(fixed) - 1) / (fixed[-1]["arrival"] - fixed[0]["arrival"])
     assert abs(rate_hz - 4.0) <= ROS_FREQ_TOL * 4.0, rate_hz
     assert all(f["utc_stamp"] == f["fix"] for f in drv.fixes)
