@@ -93,7 +93,8 @@ def gpsd_epochs(lines: Sequence[str], source: object) -> tuple[NmeaEpochs, Count
 
     Returns
     -------
-    epochs : one per TPV with a time, in file order (``dated`` True: gpsd's times carry dates)
+    epochs : one per time of the TPVs, in the order the times first appear (``dated`` True:
+        gpsd's times carry dates)
     objects : {class: objects read} (TPV, SKY, ...)
     skipped : {reason: lines}: ``not_json``, ``tpv_without_time``, and each class the gap
         tool does not read (``not_used``)

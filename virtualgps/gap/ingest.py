@@ -1,6 +1,7 @@
 """Real runs for the gap tool: a real receiver's NMEA log and its truth, read as they come.
 (gpsd's JSON of a receiver, ``gpspipe -w``, is read by :mod:`virtualgps.gap.gpsdlog` into the
-same epochs; a ROS bag's ``nmea_msgs/Sentence`` topic as the lines of a log.)
+same epochs; a ROS bag's ``nmea_msgs/Sentence`` topic as the lines of a log, its
+``sensor_msgs/NavSatFix`` messages as fixes without satellites.)
 
 Logs are read the way receivers and loggers write them (:func:`virtualgps.device.nmea.
 nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
@@ -196,7 +197,8 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
     dated_by = "log"
     if isinstance(got, rosbag.BagFixes):
-        ep, sentences, skipped = _navsatfix_epochs(got), Counter(NavSatFix=got.status.size), {}
+        ep, sentences = _navsatfix_epochs(got), Counter(NavSatFix=got.status.size)
+        skipped: Counter = Counter()
     elif not any(ln.strip() for ln in got):
         raise InputFileError(path, "the log is empty")
     elif gpsdlog.holds_gpsd_fixes(got):
@@ -313,8 +315,8 @@ def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) ->
 
     Parameters
     ----------
-    real_path : the real receiver's NMEA log, or a ROS bag of its sentences (``run.bag``, or
-        ``run.bag:TOPIC`` where it has several sentence topics)
+    real_path : the real receiver's log (NMEA, or gpsd's JSON), or a ROS bag of its sentences
+        or NavSatFix messages (``run.bag``, or ``run.bag:TOPIC`` where it has several)
     truth_spec : a pose log path (a bag's topic named so too), ``static`` or
         ``static:LAT,LON,ALT_HAE``
     name : the run's name (default: the log's file stem)
