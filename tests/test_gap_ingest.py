@@ -8,6 +8,7 @@ import json
 import math
 import os
 import shutil
+import struct
 import subprocess
 
 import numpy as np
@@ -405,6 +406,118 @@ def test_gpsd_json_of_several_devices_or_with_time_stamps(tmp_path):
     p.write_text("\n".join(lines + [other]) + "\n")
     with pytest.raises(InputFileError, match="several devices .*/dev/ttyACM0, /dev/ttyUSB1"):
         read_real_log(p)
+
+
+def _ubx_epoch(k: int, fix: bool = True, diff: bool = False, timed: bool = True) -> bytes:
+    """NAV-PVT, NAV-DOP and NAV-SAT of one epoch ``k`` s after 2024-06-01 10:00:00 UTC, as
+    pyubx2 (an independent encoder) writes them."""
+    from pyubx2 import GET, UBXMessage
+
+    itow = 540000000 + 1000 * k  # (the iTOW ties an epoch's messages; its value is not read)
+    pvt = UBXMessage("NAV", "NAV-PVT", GET, iTOW=itow, year=2024, month=6, day=1, hour=10,
+                     min=0, second=k, validDate=int(timed), validTime=int(timed),
+                     fullyResolved=int(fix), fixType=3 if fix else 0, gnssFixOk=int(fix),
+                     diffSoln=int(diff), numSV=9, lon=11.6401 + 1e-5 * k, lat=52.1405,
+                     height=141250, hMSL=100250, gSpeed=5000, headMot=45.0, pDOP=1.5)
+    dop = UBXMessage("NAV", "NAV-DOP", GET, iTOW=itow, hDOP=0.9, vDOP=1.2, pDOP=1.5)
+    sats = ((0, 5, 40, 45, 100, 1), (6, 3, 35, 20, 200, 1), (2, 11, 0, 30, 300, 0),
+            (6, 255, 30, 10, 10, 0))  # GPS 5, GLONASS slot 3, Galileo E11 (not tracked), ?
+    sat = UBXMessage("NAV", "NAV-SAT", GET, iTOW=itow, version=1, numSvs=len(sats), **{
+        f"{name}_{j + 1:02d}": v for j, row in enumerate(sats)
+        for name, v in zip(("gnssId", "svId", "cno", "elev", "azim", "svUsed"), row,
+                           strict=True)})
+    return pvt.serialize() + dop.serialize() + sat.serialize()
+
+
+def test_a_u_blox_ubx_log_reads_as_its_fixes(tmp_path):
+    """A u-blox module logging UBX (u-center's .ubx, or a port set to UBX as flight stacks set
+    it): NAV-PVT, NAV-DOP and NAV-SAT, written by pyubx2, among an NMEA TXT line and noise, read
+    as epochs: times, positions, altitude and separation, fix quality (DGPS from diffSoln),
+    satellites numbered as here (GLONASS slot 3 is 67, Galileo E11 311; a GLONASS slot not yet
+    known is left out), C/N0 (0: not tracked) and use; a NAV-PVT whose time is not valid is
+    counted. With NMEA fixes among the frames the log is read as NMEA."""
+    pytest.importorskip("pyubx2")
+    from virtualgps.device.nmea import nmea_checksum
+
+    txt = "GNTXT,01,01,02,u-blox AG - www.u-blox.com"
+    data = (_ubx_epoch(0, fix=False, timed=False) + b"\x00\xff\xb5noise"
+            + f"${txt}*{nmea_checksum(txt)}\r\n".encode()
+            + b"".join(_ubx_epoch(k, fix=k != 4, diff=k == 2) for k in range(1, 6)))
+    log = tmp_path / "module.ubx"
+    log.write_bytes(data)
+    ep, skipped, messages, dated_by = read_real_log(log)
+    t0 = 1717236000.0  # 2024-06-01 10:00:00 UTC
+    np.testing.assert_array_equal(ep.t_unix_s, t0 + np.arange(1, 6))
+    assert messages == {"NAV-PVT": 6, "NAV-DOP": 6, "NAV-SAT": 6} and dated_by == "log"
+    assert skipped == {"pvt_without_time": 1}
+    np.testing.assert_array_equal(ep.quality, [1, 2, 1, 0, 1])
+    np.testing.assert_array_equal(ep.mode, [3, 3, 3, 1, 3])
+    fix = ep.quality > 0
+    np.testing.assert_allclose(ep.lon_deg[fix], 11.6401 + 1e-5 * np.array([1, 2, 3, 5]),
+                               rtol=0, atol=1e-9)
+    assert np.isnan(ep.lat_deg[~fix]).all()
+    np.testing.assert_allclose(ep.alt_msl_m[fix], 100.25)
+    np.testing.assert_allclose(ep.geoid_sep_m[fix], 41.0)
+    np.testing.assert_allclose(ep.hdop[fix], 0.9)
+    np.testing.assert_allclose(ep.pdop[fix], 1.5)
+    np.testing.assert_allclose(ep.speed_mps[fix], 5.0)
+    np.testing.assert_allclose(ep.course_deg[fix], 45.0)
+    np.testing.assert_array_equal(ep.sats_used, 9)
+    np.testing.assert_array_equal(ep.prn, [5, 67, 311])
+    np.testing.assert_array_equal(ep.used, np.tile([True, True, False], (5, 1)))
+    np.testing.assert_array_equal(ep.cn0_dbhz[0], [40.0, 35.0, np.nan])
+    np.testing.assert_array_equal(ep.el_deg[0], [45.0, 20.0, 30.0])
+    np.testing.assert_array_equal(ep.in_view, True)
+    run = load_run(log, "static")
+    assert run.has_gsv and run.has_cn0 and run.has_gsa
+    rmc = "GPRMC,100001.00,A,5208.4300,N,01138.4066,E,9.72,45.0,010624,,,A"
+    log.write_bytes(data + f"${rmc}*{nmea_checksum(rmc)}\r\n".encode())
+    assert read_real_log(log)[2] == {"TXT": 1, "RMC": 1}
+
+
+def test_the_emulated_m8s_ubx_output_reads_as_its_epochs(tmp_path):
+    """The u-blox M8 emulation (``tests/ubx_uart.py``; itself checked against gpsd, PX4's and
+    ArduPilot's drivers) set to UBX only, with NAV-PVT, NAV-DOP and NAV-SVINFO (no NAV-SAT, as
+    PX4 sets an M8 for its satellite information): its bytes as a log read back as the epochs
+    it emitted, NAV-SVINFO's single svid numbered as here (Galileo E3 is 303, SBAS 131)."""
+    from ubx_uart import (
+        CFG_MSG,
+        CFG_PRT,
+        CLS_CFG,
+        CLS_NAV,
+        NAV_DOP,
+        NAV_PVT,
+        NAV_SVINFO,
+        SKY,
+        T0_UNIX_S,
+        Module,
+        fix_at,
+        ubx,
+    )
+
+    mod = Module("M8", no_fix=(3.0, 4.0))
+    port = struct.pack("<BBHIIHHHH", 1, 0, 0, 0x8D0, mod.baud, 0x01, 0x01, 0, 0)  # UBX only
+    mod.write(ubx(CLS_CFG, CFG_PRT, port), mod.baud, 0.0)
+    for msg in (NAV_PVT, NAV_DOP, NAV_SVINFO):
+        mod.write(ubx(CLS_CFG, CFG_MSG, bytes((CLS_NAV, msg, 1))), mod.baud, 0.0)
+    log = tmp_path / "m8.ubx"
+    log.write_bytes(mod.read(mod.baud, 8.0))
+    ep, skipped, messages, _ = read_real_log(log)
+    te = 0.5 + np.arange(8.0)
+    np.testing.assert_allclose(ep.t_unix_s, T0_UNIX_S + te)
+    assert messages["NAV-PVT"] == messages["NAV-SVINFO"] == 8 and "NAV-SAT" not in messages
+    fix = (te < 3.0) | (te >= 4.0)
+    np.testing.assert_array_equal(ep.quality > 0, fix)
+    refs = [fix_at(t) for t in te[fix]]
+    np.testing.assert_allclose(ep.lat_deg[fix], [r.lat_deg[0] for r in refs], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(ep.lon_deg[fix], [r.lon_deg[0] for r in refs], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(ep.alt_msl_m[fix], refs[0].alt_msl_m[0], atol=1e-3)
+    np.testing.assert_allclose(ep.hdop[fix], 0.8)
+    np.testing.assert_array_equal(ep.prn, sorted(s[0] for s in SKY))
+    order = np.argsort([s[0] for s in SKY])
+    np.testing.assert_array_equal(ep.used[fix][0], np.array([s[4] for s in SKY])[order])
+    np.testing.assert_array_equal(ep.cn0_dbhz[0], np.array([s[3] for s in SKY])[order])
+    np.testing.assert_array_equal(ep.el_deg[0], np.array([s[2] for s in SKY])[order])
 
 
 def test_the_simulated_receiver_runs_on_through_short_gaps_in_the_truth(shared_data):

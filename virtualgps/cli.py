@@ -139,9 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
         "and DIR/calibrated.toml.",
     )
     gap.add_argument("--real", action="append", default=[], metavar="LOG",
-                     help="a real receiver's NMEA log, gpsd's JSON of it (gpspipe -w), or a ROS "
-                     "bag of its nmea_msgs/Sentence or sensor_msgs/NavSatFix (BAG:TOPIC where "
-                     "it has several) (repeat: one per run)")
+                     help="a real receiver's NMEA log, gpsd's JSON of it (gpspipe -w), a u-blox "
+                     "UBX log, or a ROS bag of its nmea_msgs/Sentence or sensor_msgs/NavSatFix "
+                     "(BAG:TOPIC where it has several) (repeat: one per run)")
     gap.add_argument("--truth", action="append", default=[], metavar="TRUTH",
                      help="the run's true trajectory: a pose log (JSONL, CSV, TUM, NMEA, a ROS "
                      "bag: BAG:TOPIC where it has several pose topics), 'static' (stood still "

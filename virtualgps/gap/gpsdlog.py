@@ -34,11 +34,9 @@ from datetime import datetime
 import numpy as np
 
 from virtualgps.device.nmea import NmeaEpochs
+from virtualgps.device.ubx.messages import numbers_of_ubx_ids
 from virtualgps.exceptions import InputFileError
 
-# gpsd's gnssid -> the offset that numbers its svid here (virtualgps.sky.systems): GPS, SBAS
-# (svid is the PRN 120-158), Galileo, BeiDou, QZSS (svid 1-10), GLONASS (svid the slot)
-_GNSSID_OFFSET = {0: 0, 1: 0, 2: 300, 3: 400, 5: 192, 6: 64}
 # gpsd's TPV status -> GGA quality: 2 DGPS, 3 RTK fixed, 4 RTK float, 5/6 dead reckoning
 _STATUS_QUALITY = {2: 2, 3: 4, 4: 5, 5: 6, 6: 6}
 
@@ -65,10 +63,8 @@ def _time_s(text: str) -> float:
 def _number(sat: dict) -> int | None:
     """A SKY satellite's number here (None: IMES, or a system's unknown slot)."""
     gnss, svid = sat.get("gnssid"), sat.get("svid")
-    if gnss is not None and svid is not None:
-        if gnss not in _GNSSID_OFFSET or (gnss == 6 and not 1 <= svid <= 32):
-            return None
-        return int(svid) + _GNSSID_OFFSET[gnss]
+    if isinstance(gnss, int) and isinstance(svid, int):
+        return int(numbers_of_ubx_ids(gnss, svid)) or None  # (u-blox's gnssId convention)
     prn = sat.get("PRN")
     return int(prn) if isinstance(prn, int | float) and prn > 0 else None
 

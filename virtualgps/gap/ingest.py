@@ -1,7 +1,8 @@
 """Real runs for the gap tool: a real receiver's NMEA log and its truth, read as they come.
 (gpsd's JSON of a receiver, ``gpspipe -w``, is read by :mod:`virtualgps.gap.gpsdlog` into the
-same epochs; a ROS bag's ``nmea_msgs/Sentence`` topic as the lines of a log, its
-``sensor_msgs/NavSatFix`` messages as fixes without satellites.)
+same epochs, a u-blox's UBX by :mod:`virtualgps.gap.ubxlog`; a ROS bag's
+``nmea_msgs/Sentence`` topic as the lines of a log, its ``sensor_msgs/NavSatFix`` messages as
+fixes without satellites.)
 
 Logs are read the way receivers and loggers write them (:func:`virtualgps.device.nmea.
 nmea_epochs_from_lines`: text before ``$``, any talker, GSV without SNR, missing sentence
@@ -32,10 +33,11 @@ from virtualgps.device.nmea import (
     NmeaEpochs,
     UndatedLogError,
     nmea_epochs_from_lines,
-    read_text_lines,
+    read_log_bytes,
+    text_lines,
 )
 from virtualgps.exceptions import ConfigError, InputFileError
-from virtualgps.gap import gpsdlog
+from virtualgps.gap import gpsdlog, ubxlog
 from virtualgps.gap.metrics import median_position
 from virtualgps.poses import logs as pose_logs
 from virtualgps.poses import pose, rosbag
@@ -171,7 +173,8 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
     a fix that lie more than :data:`CLOCK_JUMP_S` apart from those with one are left out
     (``epochs_clock_not_set``).
 
-    path : a text log (NMEA, or gpsd's JSON: :mod:`virtualgps.gap.gpsdlog`), or a ROS bag
+    path : a log (NMEA, gpsd's JSON: :mod:`virtualgps.gap.gpsdlog`, UBX:
+        :mod:`virtualgps.gap.ubxlog`), or a ROS bag
         of the receiver's sentences or fixes (:func:`virtualgps.poses.rosbag.read_bag_receiver`)
     near_unix_s : UTC seconds near the log's start (its truth's first pose), which dates a log
         that no RMC or ZDA dates (a GGA-only log): its first epoch goes on the day that puts it
@@ -192,19 +195,23 @@ def read_real_log(path: str | Path, near_unix_s: float | None = None, topic: str
     """
     try:
         got = (rosbag.read_bag_receiver(path, topic) if rosbag.is_bag(path)
-               else read_text_lines(path))
+               else read_log_bytes(path))
     except OSError as e:
         raise InputFileError(path, f"cannot read the NMEA log: {e.strerror}") from None
     dated_by = "log"
+    frames = ubxlog.ubx_frames(got) if isinstance(got, bytes) else None
+    lines = text_lines(got) if isinstance(got, bytes) and frames is None else got
     if isinstance(got, rosbag.BagFixes):
         ep, sentences = _navsatfix_epochs(got), Counter(NavSatFix=got.status.size)
         skipped: Counter = Counter()
-    elif not any(ln.strip() for ln in got):
+    elif frames is not None:
+        ep, sentences, skipped = ubxlog.ubx_epochs(frames)
+    elif not any(ln.strip() for ln in lines):
         raise InputFileError(path, "the log is empty")
-    elif gpsdlog.holds_gpsd_fixes(got):
-        ep, sentences, skipped = gpsdlog.gpsd_epochs(got, path)
+    elif gpsdlog.holds_gpsd_fixes(lines):
+        ep, sentences, skipped = gpsdlog.gpsd_epochs(lines, path)
     else:
-        ep, sentences, skipped, dated_by = _read_nmea(got, path, near_unix_s)
+        ep, sentences, skipped, dated_by = _read_nmea(lines, path, near_unix_s)
     ok = np.isfinite(ep.t_unix_s)
     order = np.argsort(np.where(ok, ep.t_unix_s, np.inf), kind="stable")
     order = order[ok[order]]
@@ -262,7 +269,7 @@ def _read_nmea(lines: list[str], path: str | Path, near_unix_s: float | None
 _NAVSAT_QUALITY = {-1: 0, 0: 1, 1: 2, 2: 4}
 #: what a real log's records are called where they hold an altitude and a fix quality (GGA's
 #: fields): logs of RMC or GLL alone lack both
-FULL_FIX_RECORDS = ("GGA", "TPV", "NavSatFix")
+FULL_FIX_RECORDS = ("GGA", "TPV", "NAV-PVT", "NavSatFix")
 
 
 def _navsatfix_epochs(fixes: rosbag.BagFixes) -> NmeaEpochs:
@@ -315,7 +322,7 @@ def load_run(real_path: str | Path, truth_spec: str, name: str | None = None) ->
 
     Parameters
     ----------
-    real_path : the real receiver's log (NMEA, or gpsd's JSON), or a ROS bag of its sentences
+    real_path : the real receiver's log (NMEA, gpsd's JSON, UBX), or a ROS bag of its sentences
         or NavSatFix messages (``run.bag``, or ``run.bag:TOPIC`` where it has several)
     truth_spec : a pose log path (a bag's topic named so too), ``static`` or
         ``static:LAT,LON,ALT_HAE``

@@ -15,9 +15,11 @@ from virtualgps.device.nmea.reader import (
     UndatedLogError,
     nmea_epochs_from_lines,
     nmea_fixes_from_lines,
+    read_log_bytes,
     read_nmea_epochs,
     read_nmea_fixes,
     read_text_lines,
+    text_lines,
 )
 from virtualgps.device.nmea.sentence import (
     MPS_TO_KMH,
@@ -56,8 +58,10 @@ __all__ = [
     "nmea_epochs_from_lines",
     "nmea_fixes_from_lines",
     "parse_sentence",
+    "read_log_bytes",
     "read_nmea_epochs",
     "read_nmea_fixes",
     "read_text_lines",
     "render_batch",
+    "text_lines",
 ]

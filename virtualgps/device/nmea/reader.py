@@ -581,14 +581,9 @@ _BOMS = ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
          (codecs.BOM_UTF16_BE, "utf-16"))
 
 
-def read_text_lines(path: str | Path) -> list[str]:
-    """Read a text file as lines, undecodable bytes replaced (real logs hold binary noise).
-
-    A gzip-compressed file (by its magic bytes, whatever its name) is read decompressed:
-    logs are often kept as ``.nmea.gz``. A file that starts with a UTF-16 byte-order mark is
-    read as UTF-16 (Windows PowerShell's ``>`` and ``Out-File`` write logs so), one with
-    UTF-8's without it. Lines are split on LF only (CR stripped), so line numbers match what
-    editors show.
+def read_log_bytes(path: str | Path) -> bytes:
+    """A log file's bytes; a gzip-compressed one (by its magic bytes, whatever its name)
+    decompressed: logs are often kept as ``.nmea.gz``.
 
     Raises
     ------
@@ -601,8 +596,28 @@ def read_text_lines(path: str | Path) -> list[str]:
             data = gzip.decompress(data)
         except (OSError, EOFError, zlib.error) as e:
             raise OSError(errno.EIO, f"a gzip file that does not decompress ({e})") from None
+    return data
+
+
+def text_lines(data: bytes) -> list[str]:
+    """A text log's bytes as lines, undecodable bytes replaced (real logs hold binary noise).
+
+    Bytes that start with a UTF-16 byte-order mark are read as UTF-16 (Windows PowerShell's
+    ``>`` and ``Out-File`` write logs so), those with UTF-8's without it. Lines are split on LF
+    only (CR stripped), so line numbers match what editors show.
+    """
     bom = next((enc for mark, enc in _BOMS if data.startswith(mark)), "utf-8")
     return [ln.rstrip("\r") for ln in data.decode(bom, errors="replace").split("\n")]
+
+
+def read_text_lines(path: str | Path) -> list[str]:
+    """Read a text file as lines (:func:`read_log_bytes`, then :func:`text_lines`).
+
+    Raises
+    ------
+    OSError : unreadable, or a gzip file that does not decompress (a truncated download)
+    """
+    return text_lines(read_log_bytes(path))
 
 
 def _read_log_lines(path: str | Path) -> list[str]:

@@ -99,7 +99,7 @@ class InputSplitter:
     Rules (chosen to match what a receiver's input parser can know):
 
     - A UBX frame starts at ``B5 62``. Once its header is in, the frame is complete after
-      ``length + 8`` bytes; a header announcing more than :data:`MAX_INPUT_PAYLOAD_BYTES` is a
+      ``length + 8`` bytes; a header announcing more than ``max_payload`` bytes is a
       false sync: its first byte is dropped and the search goes on. A frame whose checksum is
       wrong is dropped (``bad_checksum``) and the search restarts one byte after its sync, so a
       valid frame hidden behind a truncated one is still found.
@@ -109,8 +109,10 @@ class InputSplitter:
       :data:`MAX_LINE_BYTES` is dropped.
     - Bytes outside both (noise, other protocols such as RTCM) are skipped and counted.
 
-    Pieces may arrive in any number of calls; at most ``MAX_INPUT_PAYLOAD_BYTES + 8`` bytes are
-    buffered.
+    Pieces may arrive in any number of calls; at most ``max_payload + 8`` bytes are buffered.
+
+    max_payload : the longest payload taken for a frame (default
+        :data:`MAX_INPUT_PAYLOAD_BYTES`, a client's; a receiver's log holds longer ones)
 
     Attributes
     ----------
@@ -120,7 +122,8 @@ class InputSplitter:
     skipped_bytes : bytes outside any frame or line (including false syncs)
     """
 
-    def __init__(self) -> None:
+    def __init__(self, max_payload: int = MAX_INPUT_PAYLOAD_BYTES) -> None:
+        self.max_payload = max_payload
         self._buf = bytearray()
         self.frames = 0
         self.lines = 0
@@ -154,7 +157,7 @@ class InputSplitter:
                 if len(buf) < HEADER_BYTES:
                     break
                 n = buf[4] | (buf[5] << 8)
-                if n > MAX_INPUT_PAYLOAD_BYTES:
+                if n > self.max_payload:
                     self._skip(1)  # a false sync (or a frame too long to be a command)
                     continue
                 if len(buf) < n + OVERHEAD_BYTES:

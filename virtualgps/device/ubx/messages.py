@@ -372,6 +372,35 @@ def solution(fixes: Fixes, uere_m: float = FALLBACK_UERE_M) -> Solution:
     )
 
 
+def numbers_of_ubx_ids(gnss_id: np.ndarray, sv_id: np.ndarray) -> np.ndarray:
+    """Satellite numbers (virtualgps.sky.systems numbering) of UBX gnssId/svId pairs, the
+    inverse of :func:`ubx_ids` (gpsd's JSON ``gnssid``/``svid`` follow the same appendix).
+
+    Returns
+    -------
+    (n,) int: 0 where the pair names no satellite here (IMES, a GLONASS slot unknown: 255)
+    """
+    g, sv = np.asarray(gnss_id, dtype=np.int64), np.asarray(sv_id, dtype=np.int64)
+    out = np.zeros(np.broadcast(g, sv).shape, dtype=np.int64)
+    for system, gid in ((GPS, GNSS_GPS), (SBAS, GNSS_SBAS), (GALILEO, GNSS_GALILEO),
+                        (BEIDOU, GNSS_BEIDOU), (QZSS, GNSS_QZSS), (GLONASS, GNSS_GLONASS)):
+        number = sv + (192 if system is QZSS else system.offset)
+        m = (g == gid) & (number >= system.first) & (number <= system.last)
+        out = np.where(m, number, out)
+    return out
+
+
+def numbers_of_svinfo_ids(svid: np.ndarray) -> np.ndarray:
+    """Satellite numbers of NAV-SVINFO's single "UBX" svid (see :func:`ubx_ids`); 0 for none."""
+    v = np.asarray(svid, dtype=np.int64)
+    ranges = ((1, 32, 0), (120, 158, 0), (211, 246, 90), (159, 163, 242), (33, 64, 373),
+              (193, 202, 0), (65, 96, 0))  # (first, last, number - svid): GPS SBAS GAL BDS QZSS GLO
+    out = np.zeros(v.shape, dtype=np.int64)
+    for lo, hi, shift in ranges:
+        out = np.where((v >= lo) & (v <= hi), v + shift, out)
+    return out
+
+
 # --- NAV messages, one epoch each ------------------------------------------------------------
 
 
