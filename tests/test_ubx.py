@@ -374,6 +374,22 @@ def test_nav_svinfo_uses_the_single_number_svids(fixes, sol):
         assert getattr(m, f"svUsed_{k:02d}") == int(fixes.used[0, j])
 
 
+def test_ubx_numbers_read_back_to_ours():
+    """Every satellite number of every system goes to its gnssId/svId and NAV-SVINFO svid and
+    back (what the UBX and gpsd log readers rely on); IMES and an unknown GLONASS slot (255)
+    name none, nor does an svid outside the appendix's ranges."""
+    from virtualgps.sky.systems import SYSTEMS
+
+    nums = np.concatenate([np.arange(s.first, s.last + 1) for s in SYSTEMS])
+    gnss, sv, svinfo = M.ubx_ids(nums)
+    np.testing.assert_array_equal(M.numbers_of_ubx_ids(gnss, sv), nums)
+    has = svinfo > 0  # (BeiDou above C37 has no NAV-SVINFO number)
+    np.testing.assert_array_equal(M.numbers_of_svinfo_ids(svinfo[has]), nums[has])
+    assert (nums[~has] > 437).all()
+    np.testing.assert_array_equal(M.numbers_of_ubx_ids([4, 6, 0], [1, 255, 40]), [0, 0, 0])
+    np.testing.assert_array_equal(M.numbers_of_svinfo_ids([0, 97, 255, 210]), [0, 0, 0, 0])
+
+
 def test_mon_ver_strings():
     m = parse(M.mon_ver(*MON_VER_M8))
     assert m.swVersion.rstrip(b"\0") == b"ROM CORE 3.01 (107888)"
