@@ -17,7 +17,8 @@ WATCH and other objects, which are counted and left. The epochs come out as
   its own (a SKY follows each system's GSV group, listing what the cycle has so far); a SKY
   with a time goes with the epoch of that time. gpsd 3.22 fed the MTK order and u-blox's
   gives each epoch its own sky so (``tests/test_gap_ingest.py``);
-- ``ss`` 0 is a satellite not tracked (gpsd prints 0 for NMEA's empty SNR); ``used`` is GSA's
+- ``ss`` 0 is a satellite not tracked and ``el``, ``az`` both 0 a position not known (gpsd
+  3.22 prints 0 for NMEA's empty fields: the MT3339's SBAS satellites); ``used`` is GSA's
   list; satellites are numbered as :mod:`virtualgps.sky.systems` numbers them (by
   ``gnssid``/``svid``, else gpsd's ``PRN``, which uses the same ranges);
 - ``altMSL`` (``alt`` before gpsd 3.20) and ``geoidSep`` are GGA's altitude and separation.
@@ -192,7 +193,10 @@ def _epochs(cycles: list, sky_of: list[dict | None]) -> NmeaEpochs:
         for num, s in row:
             j = int(np.searchsorted(prn, num))
             in_view[i, j] = True
-            el[i, j], az[i, j] = _float(s, "el"), _float(s, "az")
+            e, a = _float(s, "el"), _float(s, "az")
+            if e == 0.0 and a == 0.0:  # gpsd 3.22 prints 0, 0 for NMEA's empty fields
+                e = a = math.nan
+            el[i, j], az[i, j] = e, a
             ss = _float(s, "ss")
             cn0[i, j] = ss if ss > 0 else math.nan
             used[i, j] = bool(s.get("used", False))
