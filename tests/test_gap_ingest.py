@@ -1,6 +1,7 @@
 """Reading real receiver logs and their truths for the gap tool: what real logs hold (noise,
-bad checksums, clocks not yet set, logs without dates or GGA), truth specs, and a log-vs-truth
-clock offset found or said."""
+bad checksums, clocks not yet set, logs without dates or GGA), the forms they are kept in
+(Android GnssLogger's records, gpsd's JSON, u-blox UBX), truth specs, and a log-vs-truth clock
+offset found or said."""
 
 from __future__ import annotations
 

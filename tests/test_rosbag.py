@@ -1,5 +1,7 @@
 """ROS bags as pose logs (issue #9): bags written here with rosbags (ROS 1 .bag; ROS 2 .db3 and
-.mcap), replayed, and compared byte for byte with the same poses replayed from JSONL."""
+.mcap), replayed, and compared byte for byte with the same poses replayed from JSONL; and as a
+real receiver's log for ``gap`` (its nmea_msgs/Sentence or sensor_msgs/NavSatFix), read as the
+same epochs as the NMEA it holds."""
 
 from __future__ import annotations
 
@@ -181,8 +183,8 @@ def test_a_receivers_sentences_in_a_bag_are_diagnosed_as_its_log(tmp_path):
     """A robot keeps its receiver's NMEA in a bag (nmea_msgs/Sentence) beside the ground truth:
     ``gap --real run.bag --truth run.bag:/ground_truth`` reads the same epochs and writes the
     same diagnosis as the text log and a pose log, from ROS 1 and ROS 2 bags (an old ROS 2
-    bag names nmea_msgs/Sentence without defining it); a bag without sentences, or a topic
-    that is not one, is one clear error."""
+    bag names nmea_msgs/Sentence without defining it); a bag without a receiver's topic, or a
+    topic that is not one, is one clear error."""
     from virtualgps.gap.ingest import read_real_log
 
     walk = _jsonl(tmp_path / "walk.jsonl", geodetic=True)
