@@ -35,6 +35,7 @@ from datetime import datetime
 import numpy as np
 
 from virtualgps.device.nmea import NmeaEpochs
+from virtualgps.device.nmea.reader import satellite_arrays
 from virtualgps.device.ubx.messages import numbers_of_ubx_ids
 from virtualgps.exceptions import InputFileError
 
@@ -68,6 +69,15 @@ def _number(sat: dict) -> int | None:
         return int(numbers_of_ubx_ids(gnss, svid)) or None  # (u-blox's gnssId convention)
     prn = sat.get("PRN")
     return int(prn) if isinstance(prn, int | float) and prn > 0 else None
+
+
+def _listed(number: int, sat: dict) -> tuple[int, float, float, float, bool]:
+    """(number, el, az, C/N0, used) of a SKY satellite: ``ss`` 0 is not tracked, and ``el``
+    and ``az`` both 0 unknown (gpsd 3.22 prints 0 for NMEA's empty fields)."""
+    e, a, ss = _float(sat, "el"), _float(sat, "az"), _float(sat, "ss")
+    if e == 0.0 and a == 0.0:
+        e = a = math.nan
+    return number, e, a, ss if ss > 0 else math.nan, bool(sat.get("used", False))
 
 
 def _float(obj: dict, *keys: str) -> float:
@@ -186,24 +196,10 @@ def _epochs(cycles: list, sky_of: list[dict | None]) -> NmeaEpochs:
     """The arrays of :class:`NmeaEpochs` from the cycles' TPVs and their SKYs."""
     tpvs = [(first, t, obj) for first, _, t, obj in cycles]
     n = len(tpvs)
-    sats = [[(num, s) for s in (sky or {}).get("satellites", []) or []
-             if isinstance(s, dict) and (num := _number(s)) is not None] for sky in sky_of]
-    prn = np.unique(np.array([num for row in sats for num, _ in row], dtype=np.int64))
-    el = np.full((n, prn.size), np.nan)
-    az, cn0 = el.copy(), el.copy()
-    in_view = np.zeros((n, prn.size), bool)
-    used = in_view.copy()
-    for i, row in enumerate(sats):
-        for num, s in row:
-            j = int(np.searchsorted(prn, num))
-            in_view[i, j] = True
-            e, a = _float(s, "el"), _float(s, "az")
-            if e == 0.0 and a == 0.0:  # gpsd 3.22 prints 0, 0 for NMEA's empty fields
-                e = a = math.nan
-            el[i, j], az[i, j] = e, a
-            ss = _float(s, "ss")
-            cn0[i, j] = ss if ss > 0 else math.nan
-            used[i, j] = bool(s.get("used", False))
+    sats = [None if sky is None else [_listed(num, s) for s in sky.get("satellites") or []
+                                      if isinstance(s, dict) and (num := _number(s))]
+            for sky in sky_of]
+    prn, el, az, cn0, in_view, used = satellite_arrays(sats)
     mode = np.array([int(o.get("mode", 0) or 0) for _, _, o in tpvs], dtype=np.int8)
     fix = mode >= 2
     lat = np.array([_float(o, "lat") for _, _, o in tpvs])

@@ -31,6 +31,7 @@ from datetime import UTC, datetime
 import numpy as np
 
 from virtualgps.device.nmea import NmeaEpochs, parse_sentence
+from virtualgps.device.nmea.reader import satellite_arrays
 from virtualgps.device.ubx.frame import SYNC, InputSplitter, decode
 from virtualgps.device.ubx.messages import numbers_of_svinfo_ids, numbers_of_ubx_ids
 
@@ -140,15 +141,7 @@ def ubx_epochs(frames: list[tuple[int, int, bytes]]) -> tuple[NmeaEpochs, Counte
     t = t[np.isfinite(t)]
     n = len(pvts)
     sats = [_sats(sat_frames[p[0]], svinfo) if p[0] in sat_frames else None for p in pvts]
-    prn = np.unique(np.array([s[0] for row in sats if row for s in row], dtype=np.int64))
-    el = np.full((n, prn.size), np.nan)
-    az, cn0 = el.copy(), el.copy()
-    in_view = np.zeros((n, prn.size), bool)
-    used = in_view.copy()
-    for i, row in enumerate(sats):
-        for num, e, a, c, u in row or ():
-            j = int(np.searchsorted(prn, num))
-            el[i, j], az[i, j], cn0[i, j], in_view[i, j], used[i, j] = e, a, c, True, u
+    prn, el, az, cn0, in_view, used = satellite_arrays(sats)
     col = np.array(pvts, dtype=np.float64).reshape(n, 28)  # (the 28 fields of _PVT)
     fix_type, flags = col[:, 10].astype(int), col[:, 11].astype(int)
     quality = np.array([_quality(ft, fl) for ft, fl in zip(fix_type, flags, strict=True)],

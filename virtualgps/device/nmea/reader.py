@@ -15,7 +15,7 @@ import gzip
 import math
 import zlib
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import date
 from pathlib import Path
@@ -410,6 +410,36 @@ def _epoch_times_s(epochs: list[_Epoch], source: object, default_date: date | No
         t = cand[idx, np.argmin(np.abs(cand - anchor_t[:, None]), axis=1)]
         days = np.floor(t / 86400.0).astype(np.int64)
     return days * 86400.0 + tod, True
+
+
+def satellite_arrays(rows: Sequence[Sequence[tuple[int, float, float, float, bool]] | None]
+                     ) -> tuple[np.ndarray, ...]:
+    """The per-satellite arrays of :class:`NmeaEpochs` from each epoch's listed satellites, for
+    logs that list them as records rather than GSV and GSA (gpsd's SKY, u-blox's NAV-SAT).
+
+    Parameters
+    ----------
+    rows : per epoch, its satellites as (number, elevation deg, azimuth deg, C/N0 dB-Hz, used);
+        NaN for what is not known; None or empty for an epoch without a list
+
+    Returns
+    -------
+    prn : (n_sat,) int, ascending; el_deg, az_deg, cn0_dbhz : (n_t, n_sat) float64, NaN where
+    not listed; in_view, used : (n_t, n_sat) bool
+    """
+    listed = [(i, *sat) for i, row in enumerate(rows) for sat in row or ()]
+    n_t = len(rows)
+    prn = np.unique(np.array([x[1] for x in listed], dtype=np.int64))
+    el = np.full((n_t, prn.size), np.nan)
+    az, cn0 = el.copy(), el.copy()
+    in_view = np.zeros((n_t, prn.size), dtype=bool)
+    used = in_view.copy()
+    if listed:
+        a = np.array(listed, dtype=np.float64)
+        r, c = a[:, 0].astype(np.int64), np.searchsorted(prn, a[:, 1].astype(np.int64))
+        el[r, c], az[r, c], cn0[r, c] = a[:, 2], a[:, 3], a[:, 4]
+        in_view[r, c], used[r, c] = True, a[:, 5] != 0
+    return prn, el, az, cn0, in_view, used
 
 
 def nmea_epochs_from_lines(
