@@ -32,7 +32,7 @@ import numpy as np
 
 from virtualgps.device.nmea import NmeaEpochs, parse_sentence
 from virtualgps.device.nmea.reader import satellite_arrays
-from virtualgps.device.ubx.frame import SYNC, InputSplitter, decode
+from virtualgps.device.ubx.frame import SYNC, InputSplitter
 from virtualgps.device.ubx.messages import numbers_of_svinfo_ids, numbers_of_ubx_ids
 
 NAV_DOP, NAV_PVT, NAV_SVINFO, NAV_SAT = (0x01, 0x04), (0x01, 0x07), (0x01, 0x30), (0x01, 0x35)
@@ -50,7 +50,7 @@ def ubx_frames(data: bytes) -> list[tuple[int, int, bytes]] | None:
     frames, nmea_fix = [], False
     for item in items:
         if item[:2] == SYNC:
-            frames.append(decode(item))
+            frames.append((item[2], item[3], item[6:-2]))  # (checksum verified by the splitter)
         elif not nmea_fix:
             parsed = parse_sentence(item.decode("ascii", "replace"))
             nmea_fix = parsed is not None and parsed[0][-3:] in ("GGA", "RMC", "GLL")
