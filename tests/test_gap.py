@@ -427,6 +427,11 @@ def test_selfcheck_tells_the_papers_noise_from_dop_driven_errors(tmp_path):
     assert [t["ranked_first"] for t in res["trials"]] == ["noise_level"] * 2 + ["dop_error"] * 2
     for t in res["trials"]:
         assert t["gap_after"] < 0.5 * t["gap_before"]
+        # each recovered on the candidate's one axis, a scale: the paper's noise drawn as one,
+        # the DOP-driven errors' UERE budget as it is (1)
+        assert t["covered"] == {"scale": True}, (t["params"], t["recovered"])
+        assert t["recovered"]["scale"] == pytest.approx(t["params"]["scale"], rel=0.45)
+    assert {t["params"]["scale"] for t in res["trials"][2:]} == {1.0}
 
 
 def _gap_cli(args: list[str]) -> subprocess.CompletedProcess:
@@ -532,6 +537,22 @@ def test_a_drive_far_from_the_origin_blames_the_flat_earth_not_the_truth(shared_
     assert "exact conversion" in off["reference_note"]
     cep = next(w for w in report["where"] if (w["metric"], w["segment"]) == ("cep50_m", "all"))
     assert cep["real"] < 1.5  # the phone's own error, about the SPAN truth
+
+
+def test_a_selfcheck_runs_the_real_log_trials_it_names_and_no_others(tmp_path):
+    """``--effects`` names the self-check's trials, the real-log ones by their label: naming
+    only synthetic trials runs none of them (before, every one ran, some ten minutes); an
+    unknown label is one clear error before anything runs."""
+    from virtualgps.gap import selfcheck_real as sr
+
+    assert sr.named_effects(None) == sr.REAL_EFFECTS
+    assert sr.named_effects(("latency", "nothing@usarsim")) == ()
+    assert sr.named_effects(("latency", "real:gsdc:nav_filter")) == ("nav_filter",)
+    with pytest.raises(ValueError, match="real:gsdc:latency"):
+        sr.named_effects(("real:latency",))
+    r = _gap_cli(["--selfcheck", "--effects", "sbas,real:gsdc:delay", "--out", str(tmp_path)])
+    assert r.returncode == 2 and "unknown real-log trial real:gsdc:delay" in r.stderr, r.stderr
+    assert not (tmp_path / "work").exists()
 
 
 def test_the_real_bases_slow_offset_is_a_gauss_markov_process_of_its_tau_and_sigma():

@@ -28,7 +28,7 @@ MAIN_PARAM = {
     "cn0_tracking": ("cn0_zenith_dbhz", "dB-Hz"), "nlos": ("reflection_loss_db", "dB"),
     "multipath": ("sigma_m", "m"), "latency": ("latency_s", "s"), "nav_filter": ("tau_s", "s"),
     "static_hold": ("threshold_mps", "m/s"), "elevation_mask": ("elevation_mask_deg", "°"),
-    "noise_level": ("max_noise_m", "m"),
+    "noise_level": ("scale", "× usarsim's noise"), "dop_error": ("scale", "× the UERE budget"),
 }
 
 

@@ -171,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "(default 4; blocks are guarded by the error's correlation time)")
     gap.add_argument("--selfcheck", action="store_true",
                      help="diagnose pseudo-real logs with known injected effects instead "
-                     "(--effects then names trials: effects, pairs a+b, nothing@PROFILE)")
+                     "(--effects then names trials: effects, pairs a+b, nothing@PROFILE, "
+                     "real:gsdc:EFFECT; naming none, all of them)")
     gap.add_argument("--trials", type=int, default=3,
                      help="self-check trials per effect (default 3)")
     gap.add_argument("--data", metavar="DIR",
@@ -533,7 +534,7 @@ def _gap_options(args: argparse.Namespace):
     elif args.effects:
         effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
         bad = [e for e in effects if not (e in EFFECT_NAMES or (args.selfcheck and (
-            "+" in e or e.startswith("nothing"))))]
+            "+" in e or e.startswith(("nothing", "real:")))))]
         if bad:
             raise VirtualGPSError(f"--effects: unknown effect {', '.join(bad)}; known: "
                                   f"{', '.join(EFFECT_NAMES)}")
@@ -583,7 +584,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
         raise VirtualGPSError(f"--out {out}: exists and is not a folder")
     progress = _GapStatus(sys.stderr)
     if args.selfcheck:
-        from virtualgps.gap import selfcheck, synthetic
+        from virtualgps.gap import selfcheck, selfcheck_real, synthetic
 
         data = Path(args.data) if args.data else Path("..") / "shared" / "data"
         if args.data and not data.is_dir():
@@ -592,6 +593,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
             labels = selfcheck.default_labels(opts.effects)
             for label in labels:
                 synthetic.spec_of(label)
+            selfcheck_real.named_effects(opts.effects)
         except (KeyError, ValueError) as exc:
             raise VirtualGPSError(f"--effects: {exc}") from None
         result = selfcheck.run(opts, trials=args.trials, out_dir=out, progress=progress,

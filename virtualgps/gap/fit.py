@@ -101,12 +101,13 @@ class Fitted:
     refits: int = 0
 
     def public(self) -> dict:
-        """The report's ``fit`` entry; ``spans``: per numeric axis with an interval, the values
-        that round into its grid points
+        """The report's ``fit`` entry: ``point``, the chosen axis values (a ``scale`` that
+        ``params`` shows only as the values it multiplies); ``spans``: per numeric axis with an
+        interval, the values that round into its grid points
         (:func:`virtualgps.gap.effects.grid_span`)."""
         spans = {k: fx.grid_span(self.grid[k], *iv) for k, iv in self.intervals.items()
                  if k in self.grid and isinstance(iv, list) and len(iv) == 2}
-        return {"intervals": self.intervals, "spans": spans,
+        return {"point": self.point, "intervals": self.intervals, "spans": spans,
                 "identifiable": self.identifiable, "grid_edge": self.grid_edge,
                 "bounds": self.bounds, "flat": self.flat, "noise": self.noise,
                 "grid": self.grid, "refits": self.refits}

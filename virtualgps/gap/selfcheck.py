@@ -47,13 +47,13 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
     Parameters
     ----------
     opts : diagnosis options (``effects`` restricts the trials: effect names, pairs ``a+b``,
-        ``nothing@PROFILE``)
+        ``nothing@PROFILE``, real-log trials ``real:gsdc:EFFECT``)
     trials : trials per label
     out_dir : output folder (its ``work/`` subfolder keeps the pseudo-real logs)
     progress : called with a short text as trials finish
     labels : the trial labels (default: :func:`default_labels` of ``opts.effects``)
     data : the shared real logs (``../shared/data``): real-log bases with effects injected
-        (:mod:`.selfcheck_real`); None: none
+        (:mod:`.selfcheck_real`: all, or those ``effects`` names); None: none
 
     Returns
     -------
@@ -89,8 +89,10 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
     if data is not None:
         from virtualgps.gap import selfcheck_real
 
-        real_rows, real_note = selfcheck_real.run(Path(data), diag_opts, trials, work,
-                                                  progress)
+        asked = selfcheck_real.named_effects(opts.effects)
+        real_rows, real_note = (selfcheck_real.run(Path(data), diag_opts, trials, work,
+                                                   progress, effects=asked)
+                                if asked else ([], None))
         rows += real_rows
     result = summarise(rows, opts)
     if real_note:

@@ -47,6 +47,24 @@ BASE_LOG = "Pixel4_chipset.nmea"  # (the drive's other phone, Pixel4XLModded_chi
 BASE_PROFILE = "holux-m1000"
 REAL_EFFECTS = ("latency", "nav_filter", "static_hold", "truth_offset", "cold_start",
                 "correlated_error")
+LABEL = "real:gsdc:"  # a trial's label: this and the effect injected
+
+
+def named_effects(names: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The real-log trials a self-check asked for by ``names`` (its ``--effects``): all of
+    :data:`REAL_EFFECTS` when it names none, else those named by their label
+    (``real:gsdc:latency``). An unknown one raises ValueError."""
+    if not names:
+        return REAL_EFFECTS
+    known = {LABEL + e: e for e in REAL_EFFECTS}
+    asked = [n for n in names if n.startswith("real:")]
+    bad = [n for n in asked if n not in known]
+    if bad:
+        raise ValueError(f"unknown real-log trial {', '.join(bad)}; known: "
+                         f"{', '.join(known)}")
+    return tuple(known[n] for n in asked)
+
+
 # The tables that withhold an injected effect the base profile has (DESIGN 7.4)
 WITHHOLD = {"correlated_error": {"correlated_error": {"enabled": False}}}
 MPS_PER_KNOT = 1852.0 / 3600.0
@@ -313,7 +331,7 @@ def run(data: Path, opts: dg.Options, trials: int, work: Path,
             first = (("truth_offset" if success else ranked[0]) if effect == "truth_offset"
                      else ranked[0])
             rows.append({
-                "injected": f"real:gsdc:{effect}", "kind": "real", "effects": [effect],
+                "injected": f"{LABEL}{effect}", "kind": "real", "effects": [effect],
                 "scenario": f"gsdc drive, {Path(profile).stem}",
                 "params": (injected | {"sigma_m": sigma} if effect == "correlated_error"
                            else injected),

@@ -60,12 +60,16 @@ class Injection:
     draw : (rng, low_sats) -> the injected tables (known parameters); low_sats: (12,) the
         run's mean number of satellites below 30 deg elevation per 30 deg of azimuth
     scenarios : the trajectories it is checked on (cycled over trials)
+    on_axes : (injected tables, the base profile's tables) -> the injection on the candidate's
+        own axes where those are not the tables' keys (a scale of the base's values), so that
+        its recovery is judged on them too; None: the tables' keys are the axes
     """
 
     base: str
     withhold: dict
     draw: Callable[[np.random.Generator, np.ndarray], dict]
     scenarios: tuple[str, ...]
+    on_axes: Callable[[dict, dict], dict] | None = None
 
 
 def _u(rng: np.random.Generator, lo: float, hi: float, nd: int = 1) -> float:
@@ -148,13 +152,24 @@ INJECTIONS: dict[str, Injection] = {
         ("static_open", "moving_open")),
     "noise_level": Injection(
         "usarsim", {},
-        lambda r, _: {"noise": {"max_noise_m": _u(r, 16, 30, 0), "min_noise_m": _u(r, 4, 8, 0)}},
-        ("static_open", "moving_open")),
+        lambda r, _: _scaled_noise(_u(r, 2.0, 3.75, 2)),
+        ("static_open", "moving_open"),
+        lambda tables, base: {"scale": round(tables["noise"]["max_noise_m"]
+                                             / base["noise"]["max_noise_m"], 3)}),
     "dop_error": Injection(
         "usarsim", {},
         lambda r, _: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
-        ("static_open", "moving_open")),
+        ("static_open", "moving_open"),
+        lambda tables, base: {"scale": 1.0}),  # the UERE budget as it is (effects.UERE_M)
 }
+
+
+def _scaled_noise(scale: float) -> dict:
+    """``noise_level`` as its candidate fits it (:mod:`virtualgps.gap.effects`): ``usarsim``'s
+    maxNoise and minNoise both times ``scale`` (the candidate has one axis, so an injection
+    off it would leave nothing to recover)."""
+    noise = load_profile_dict("usarsim")[0]["noise"]
+    return {"noise": {k: round(float(noise[k]) * scale, 3) for k in ("max_noise_m", "min_noise_m")}}
 
 
 def _moving_enu(rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
@@ -358,13 +373,14 @@ def _label_index(label: str) -> int:
 
 
 def recovered(names: tuple[str, ...], report: dict) -> tuple[dict, dict, dict]:
-    """The fitted parameters of the injected effects as the report gives them, their
+    """The fitted parameters of the injected effects as the report gives them (with the axis
+    values of the chosen point, ``fit.point``, that the parameters do not name), their
     intervals (``fit.intervals``: the near-optimal grid points and those refits picked) and
     the grids those were fitted over."""
     params, intervals, grids = {}, {}, {}
     for e in report["effects"]:
         if e["name"] in names and e.get("accepted"):
-            params.update(e["params"])
+            params.update({**(e.get("fit") or {}).get("point", {}), **e["params"]})
             intervals.update((e.get("fit") or {}).get("intervals", {}))
             grids.update((e.get("fit") or {}).get("grid", {}))
     return params, intervals, grids
@@ -401,6 +417,10 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
                                      if not e.get("accepted")]
     params, intervals, grids = recovered(effects, report)
     injected = _flat(trial.injected)
+    base = load_profile_dict(spec_of(trial.label).base)[0] if effects else {}
+    for name in effects:
+        if INJECTIONS[name].on_axes is not None:
+            injected.update(INJECTIONS[name].on_axes(trial.injected, base))
     if kind == "null":
         success = ranked[0] == NOTHING
     elif kind == "pair":
