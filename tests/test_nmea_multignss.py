@@ -131,6 +131,14 @@ def test_our_reader_takes_each_talkers_ids_back_to_the_satellites_numbers():
     ep = nmea_epochs_from_lines([nmea.format_sentence(ln[1:-1]) for ln in old])
     assert ep.prn.tolist() == [5, 70, 123, 193, 407]
     assert ep.used[0].tolist() == [True, True, False, False, False]
+    # NavIC (talker GI, system ID 6), simulated nowhere here: its IDs 1-14 are no GPS PRNs
+    # (before: GI 05 and 09 stood as GPS 5 and 9, and GPS 9 was "used")
+    navic = [*old[:3], "$GIGSV,1,1,02,05,60,10,40,09,25,300,33*",
+             "$GNGSA,A,3,05,,,,,,,,,,,,1.5,0.9,1.2,1*", "$GNGSA,A,3,05,09,,,,,,,,,,,1.5,0.9,1.2,6*"]
+    ep = nmea_epochs_from_lines([nmea.format_sentence(ln[1:-1]) for ln in navic])
+    assert ep.prn.tolist() == [5, 123, 193] and ep.used[0].tolist() == [True, False, False]
+    assert ep.el_deg[0, 0] == 40 and ep.sats_in_view.tolist() == [3]
+    assert ep.sats_used_gsa.tolist() == [1]
 
 
 @pytest.mark.parametrize("table, message", [

@@ -35,6 +35,10 @@ from virtualgps.sky import systems
 _TALKER_SYSTEM = {"GA": systems.GALILEO, "GB": systems.BEIDOU, "BD": systems.BEIDOU,
                   "GQ": systems.QZSS}
 _NMEA_ID_SYSTEM = {s.nmea_id: s for s in (systems.GALILEO, systems.BEIDOU, systems.QZSS)}
+# NavIC (NMEA 4.11: talker GI, system ID 6) is numbered and simulated nowhere here: its
+# satellites (IDs 1-14) are left out of the satellite lists, not taken for GPS PRNs 1-14
+_UNNUMBERED_TALKERS = {"GI"}
+_UNNUMBERED_IDS = {6}
 
 
 def _sat_number(system: systems.System | None, ident: int) -> int:
@@ -72,7 +76,8 @@ class NmeaEpochs:
     sats_used : (n_t,) int, satellites used: GGA's field, else the GSA PRN count; -1 if neither
     sats_used_gga : (n_t,) int, GGA's satellites-used field; -1 if empty or no GGA
     sats_used_gsa : (n_t,) int, PRNs listed in the epoch's GSA sentences; -1 without GSA
-    sats_in_view : (n_t,) int, GSV's "satellites in view" field; -1 without GSV
+    sats_in_view : (n_t,) int, GSV's "satellites in view" field; -1 without GSV (NavIC's GIGSV,
+        a system simulated nowhere here, is left out of it and of the satellite lists)
     gsv_complete : (n_t,) bool, every GSV message 1..N of the epoch arrived (valid checksums)
     prn : (n_sat,) int, the satellites' numbers (columns of the per-satellite arrays),
         ascending, as :mod:`virtualgps.sky.systems` numbers them: NMEA 4.11 IDs mapped by
@@ -333,14 +338,18 @@ def _read_epochs(lines: Iterable[str], tally: Counter | None = None
             elif cur is None:
                 continue
             elif kind == "GSA" and len(f) >= 17:
-                sys_gsa = (_NMEA_ID_SYSTEM.get(int(f[17], 16)) if len(f) > 17 and f[17]
+                sys_id = int(f[17], 16) if len(f) > 17 and f[17] else None
+                sys_gsa = (_NMEA_ID_SYSTEM.get(sys_id) if sys_id is not None
                            else _TALKER_SYSTEM.get(addr[:2]))
-                prns = {_sat_number(sys_gsa, int(p)) for p in f[2:14] if p}
+                unnumbered = (sys_id in _UNNUMBERED_IDS if sys_id is not None
+                              else addr[:2] in _UNNUMBERED_TALKERS)
+                prns = set() if unnumbered else {_sat_number(sys_gsa, int(p))
+                                                 for p in f[2:14] if p}
                 cur.gsa_prns = prns if cur.gsa_prns is None else cur.gsa_prns | prns
                 if cur.mode == 0:
                     cur.mode = int(f[1]) if f[1] else 0
                     cur.pdop, cur.hdop_gsa, cur.vdop = (_opt_float(x) for x in f[14:17])
-            elif kind == "GSV" and len(f) >= 3:
+            elif kind == "GSV" and len(f) >= 3 and addr[:2] not in _UNNUMBERED_TALKERS:
                 total, num, n_view = int(f[0]), int(f[1]), int(f[2])
                 # NMEA 4.10+ ends a GSV with its signal ID: a dual-band receiver lists each
                 # talker's satellites once per signal, each list numbered 1..N of its own
