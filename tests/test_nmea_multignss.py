@@ -139,6 +139,10 @@ def test_our_reader_takes_each_talkers_ids_back_to_the_satellites_numbers():
     assert ep.prn.tolist() == [5, 123, 193] and ep.used[0].tolist() == [True, False, False]
     assert ep.el_deg[0, 0] == 40 and ep.sats_in_view.tolist() == [3]
     assert ep.sats_used_gsa.tolist() == [1]
+    # QZSS under the older talkers QZ (by PRN or by ID) and Quectel's PQ: never GPS 1-10
+    qzss = [*old[:2], "$QZGSV,1,1,02,193,50,100,40,02,45,120,38*", "$PQGSV,1,1,01,03,30,200,35*"]
+    ep = nmea_epochs_from_lines([nmea.format_sentence(ln[1:-1]) for ln in qzss])
+    assert ep.prn.tolist() == [193, 194, 195]
 
 
 @pytest.mark.parametrize("table, message", [

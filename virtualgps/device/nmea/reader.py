@@ -31,9 +31,10 @@ from virtualgps.sky import systems
 # (GSV, and GSA but GN) or NMEA 4.11's system ID (a GN GSA's last field) names: NMEA 4.11 gives
 # Galileo 1-36 under GA, BeiDou 1-63 under GB (BD in 4.10), QZSS 1-10 under GQ; GPS and
 # GLONASS IDs (1-32, SBAS 33-64, GLONASS 65-96) stand as they are under any talker, as receivers
-# before 4.10 wrote every system under GP or GN.
+# before 4.10 wrote every system under GP or GN. QZSS also comes under QZ (Telit SL869, as
+# gpsd's regression logs show it) and Quectel's PQ, by ID 1-10 or by PRN 193-202.
 _TALKER_SYSTEM = {"GA": systems.GALILEO, "GB": systems.BEIDOU, "BD": systems.BEIDOU,
-                  "GQ": systems.QZSS}
+                  "GQ": systems.QZSS, "QZ": systems.QZSS, "PQ": systems.QZSS}
 _NMEA_ID_SYSTEM = {s.nmea_id: s for s in (systems.GALILEO, systems.BEIDOU, systems.QZSS)}
 # NavIC (NMEA 4.11: talker GI, system ID 6) is numbered and simulated nowhere here: its
 # satellites (IDs 1-14) are left out of the satellite lists, not taken for GPS PRNs 1-14
