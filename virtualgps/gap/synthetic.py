@@ -417,10 +417,11 @@ def _row(trial: Trial, kind: str, effects: tuple[str, ...], report: dict) -> dic
                                      if not e.get("accepted")]
     params, intervals, grids = recovered(effects, report)
     injected = _flat(trial.injected)
-    base = load_profile_dict(spec_of(trial.label).base)[0] if effects else {}
-    for name in effects:
-        if INJECTIONS[name].on_axes is not None:
-            injected.update(INJECTIONS[name].on_axes(trial.injected, base))
+    on_axes = [INJECTIONS[n].on_axes for n in effects if INJECTIONS[n].on_axes is not None]
+    if on_axes:
+        base = load_profile_dict(spec_of(trial.label).base)[0]
+        for where in on_axes:
+            injected.update(where(trial.injected, base))
     if kind == "null":
         success = ranked[0] == NOTHING
     elif kind == "pair":
