@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -414,6 +415,40 @@ def test_a_null_trial_takes_any_profile(tmp_path):
     assert len(rmc) == 5 * synthetic.DURATION_S + 1  # the profile's own rate, 5 Hz
     assert synthetic.trial_tag("cold_start+latency") == "cold_start-latency"
     assert synthetic.trial_tag("nothing@holux-m1000") == "nothing-holux-m1000"
+
+
+def test_an_effect_trial_takes_another_profile(tmp_path):
+    """``EFFECT@PROFILE`` injects the effect's own draw into another profile and withholds it
+    there (a u-blox already has a correlated error: it is switched off in the profile under
+    test, and on in the log); the noise trials, stated in their own base's noise, and names
+    no trial injects are refused with a reason."""
+    from virtualgps.gap import selfcheck, synthetic
+    from virtualgps.sky.ephemeris import default_tle_path
+
+    spec = synthetic.spec_of("latency@ublox-m8n")
+    assert (spec.base, spec.kind, spec.effects) == ("ublox-m8n", "single", ("latency",))
+    assert spec.scenarios == synthetic.INJECTIONS["latency"].scenarios
+    assert synthetic.spec_of("cold_start+latency@phone").base == "phone"
+    with pytest.raises(ValueError, match="usarsim only"):
+        synthetic.spec_of("noise_level@ublox-m8n")
+    with pytest.raises(ValueError, match="no self-check trial injects foliage"):
+        synthetic.spec_of("foliage")
+    assert selfcheck.default_labels(("latency@ublox-m8n", "real:gsdc:latency", "nothing")) == [
+        "latency@ublox-m8n", "nothing"]
+    # (a u-blox's trial runs at the scene set's date, where GLONASS sets are bundled too)
+    scene_tle = str(default_tle_path().with_name("gps-ops-2017-03-26.tle"))
+    tr = synthetic.make_trial("correlated_error@ublox-m8n", 0, tmp_path, None, "", scene_tle,
+                              str(default_tle_path()))
+    assert tr.scenario == "static_open"
+    sets = [Path(p).name for p in tr.tle.split(os.pathsep)]
+    assert sets[0] == "gps-ops-2017-03-26.tle" and sets[1].startswith("glo-ops-2017-03-2")
+    tested = tomllib.loads(tr.profile.read_text())
+    assert tested["name"] == "ublox-m8n-without-correlated_error"
+    assert tested["correlated_error"]["enabled"] is False
+    assert tested["constellations"] == load_profile_dict("ublox-m8n")[0]["constellations"]
+    assert tr.injected["correlated_error"]["enabled"] is True
+    talkers = {ln[1:3] for ln in tr.real.read_text().splitlines() if ln[3:6] == "GSV"}
+    assert len(talkers) > 1  # the u-blox's own sky (GPS and more), not holux-m1000's GPS alone
 
 
 def test_selfcheck_tells_the_papers_noise_from_dop_driven_errors(tmp_path):

@@ -21,6 +21,7 @@ bands alone.
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from virtualgps.gap import diagnose as dg
@@ -47,7 +48,7 @@ def main() -> None:
         tr = synthetic.make_trial(label, int(index), Path(args.work), scene, scene_dir,
                                   str(scene.tle_path), str(default_tle_path()))
         inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene=tr.scene or "none",
-                             tle=tr.tle, profile=str(tr.profile))
+                             tle=tuple(tr.tle.split(os.pathsep)), profile=str(tr.profile))
         opts = dg.Options(seeds=args.seeds, jobs=args.jobs,
                           effects=() if args.bands_only else None)
         report, _, _ = tool.diagnose(inp, opts)

@@ -171,8 +171,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "(default 4; blocks are guarded by the error's correlation time)")
     gap.add_argument("--selfcheck", action="store_true",
                      help="diagnose pseudo-real logs with known injected effects instead "
-                     "(--effects then names trials: effects, pairs a+b, nothing@PROFILE, "
-                     "real:gsdc:EFFECT; naming none, all of them)")
+                     "(--effects then names trials: effects, pairs a+b, either injected into "
+                     "another profile as a@PROFILE, nothing@PROFILE, real:gsdc:EFFECT; naming "
+                     "none, all of them)")
     gap.add_argument("--trials", type=int, default=3,
                      help="self-check trials per effect (default 3)")
     gap.add_argument("--data", metavar="DIR",
@@ -534,7 +535,7 @@ def _gap_options(args: argparse.Namespace):
     elif args.effects:
         effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
         bad = [e for e in effects if not (e in EFFECT_NAMES or (args.selfcheck and (
-            "+" in e or e.startswith(("nothing", "real:")))))]
+            "+" in e or "@" in e or e.startswith(("nothing", "real:")))))]
         if bad:
             raise VirtualGPSError(f"--effects: unknown effect {', '.join(bad)}; known: "
                                   f"{', '.join(EFFECT_NAMES)}")

@@ -12,6 +12,7 @@ held-out shrinkage and the band's calibration under the null are reported.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -35,7 +36,7 @@ def default_labels(effects: tuple[str, ...] | None) -> list[str]:
     """The trial labels of a self-check: every injectable effect (or those asked), the null
     trials of each profile, and the pairs (all, when no effect is named)."""
     if effects:
-        return [e for e in effects if e in INJECTIONS or "+" in e or e.startswith(NOTHING)]
+        return [e for e in effects if not e.startswith("real:")]
     return ([*INJECTIONS] + [f"{NOTHING}@{p}" for p in NULL_SCENARIOS] + list(PAIRS))
 
 
@@ -79,7 +80,7 @@ def run(opts: dg.Options, trials: int = 3, out_dir: str | Path = "selfcheck",
         for i in range(trials):
             tr = make_trial(label, i, work, scene, scene_dir, scene_tle, open_tle)
             inp = tool.GapInputs(real=(str(tr.real),), truth=(tr.truth,), scene=tr.scene or "none",
-                                 tle=tr.tle, profile=str(tr.profile))
+                                 tle=tuple(tr.tle.split(os.pathsep)), profile=str(tr.profile))
             report, _, _ = tool.diagnose(inp, diag_opts)
             rows.append(_row(tr, spec.kind, spec.effects, report))
             if progress:

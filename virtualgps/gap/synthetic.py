@@ -25,6 +25,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -98,6 +99,10 @@ def _sector(rng: np.random.Generator, low_sats: np.ndarray) -> list[list[float]]
 
 MIN_SECTOR_SATS = 1.5  # mean satellites below 30 deg inside (and outside) a blocked sector
 
+# The base of the noise trials: the paper's profile, whose error is its Gaussian noise alone
+# (``noise_level`` scales it; ``dop_error`` replaces it)
+NOISE_BASE = "usarsim"
+
 
 INJECTIONS: dict[str, Injection] = {
     "correlated_error": Injection(
@@ -151,13 +156,13 @@ INJECTIONS: dict[str, Injection] = {
                                   "atten_db": _sector(r, low)}},
         ("static_open", "moving_open")),
     "noise_level": Injection(
-        "usarsim", {},
+        NOISE_BASE, {},
         lambda r, _: _scaled_noise(_u(r, 2.0, 3.75, 2)),
         ("static_open", "moving_open"),
         lambda tables, base: {"scale": round(tables["noise"]["max_noise_m"]
                                              / base["noise"]["max_noise_m"], 3)}),
     "dop_error": Injection(
-        "usarsim", {},
+        NOISE_BASE, {},
         lambda r, _: {"noise": {"model": "none"}, "dop_error": {"enabled": True}},
         ("static_open", "moving_open"),
         lambda tables, base: {"scale": 1.0}),  # the UERE budget as it is (effects.UERE_M)
@@ -165,10 +170,10 @@ INJECTIONS: dict[str, Injection] = {
 
 
 def _scaled_noise(scale: float) -> dict:
-    """``noise_level`` as its candidate fits it (:mod:`virtualgps.gap.effects`): ``usarsim``'s
-    maxNoise and minNoise both times ``scale`` (the candidate has one axis, so an injection
-    off it would leave nothing to recover)."""
-    noise = load_profile_dict("usarsim")[0]["noise"]
+    """``noise_level`` as its candidate fits it (:mod:`virtualgps.gap.effects`): the base
+    profile's maxNoise and minNoise both times ``scale`` (the candidate has one axis, so an
+    injection off it would leave nothing to recover)."""
+    noise = load_profile_dict(NOISE_BASE)[0]["noise"]
     return {"noise": {k: round(float(noise[k]) * scale, 3) for k in ("max_noise_m", "min_noise_m")}}
 
 
@@ -260,20 +265,34 @@ class Spec:
 
 
 def spec_of(label: str) -> Spec:
-    """The trial spec of an effect name, a pair ``a+b`` of effects or ``nothing@PROFILE``."""
-    if label.startswith(NOTHING):
-        base = label.partition("@")[2] or "holux-m1000"
+    """The trial spec of an effect name, a pair ``a+b`` of effects or ``nothing@PROFILE``;
+    ``EFFECT@PROFILE`` (or ``a+b@PROFILE``) injects into another profile than the effect's
+    own base (a name or a TOML path), drawn as in its own trials, withheld from and diagnosed
+    against that profile (an effect it already has is switched off where the effect's own
+    trial withholds it). ``noise_level`` and ``dop_error`` stay on their base, whose noise
+    they are stated in.
+    """
+    names_part, _, other = label.partition("@")
+    if names_part == NOTHING:
+        base = other or "holux-m1000"
         return Spec(label, "null", base, {}, (), NULL_SCENARIOS.get(base, ALL_SCENARIOS))
-    names = tuple(label.split("+"))
+    names = tuple(names_part.split("+"))
+    unknown = [n for n in names if n not in INJECTIONS]
+    if unknown:
+        raise ValueError(f"{label}: no self-check trial injects {', '.join(unknown)} (those "
+                         f"that do: {', '.join(INJECTIONS)}, nothing@PROFILE)")
     injs = [INJECTIONS[n] for n in names]
     if len({i.base for i in injs}) != 1:
         raise ValueError(f"{label}: the effects are checked on different profiles")
+    if other and any(i.on_axes is not None for i in injs):
+        raise ValueError(f"{label}: {names_part} is checked on {injs[0].base} only (its "
+                         "injection is stated in that profile's noise)")
     common = tuple(sc for sc in injs[0].scenarios if all(sc in i.scenarios for i in injs))
     withhold: dict = {}
     for i in injs:
         withhold = fx.apply(withhold, i.withhold)
-    return Spec(label, "pair" if len(names) > 1 else "single", injs[0].base, withhold, names,
-                common or injs[0].scenarios)
+    return Spec(label, "pair" if len(names) > 1 else "single", other or injs[0].base, withhold,
+                names, common or injs[0].scenarios)
 
 
 # Null trials: logs made by the profile under test itself, in each kind of place (any other
@@ -309,16 +328,29 @@ class Trial:
 
 def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_tle: str,
                open_tle: str) -> Trial:
-    """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial."""
-    from virtualgps.sky.ephemeris import load_tle
+    """Write the pseudo-real NMEA log, its truth and the withheld profile of one trial.
+
+    A trial in open sky runs near ``open_tle``'s epoch, one among the scene's buildings near
+    ``scene_tle``'s. A base profile that tracks more systems than GPS runs near the scene
+    set's epoch in both, where sets of those systems are bundled: its log and its diagnosis
+    see every system it tracks, each from the set nearest the trial's start
+    (:func:`virtualgps.sky.skytime.choose_tle_set`, as ``replay`` and ``gap`` choose them);
+    ``Trial.tle`` then joins the sets' paths with ``os.pathsep``.
+    """
+    from virtualgps.sky.ephemeris import load_tle, load_tle_sets
 
     spec = spec_of(label)
     rng = np.random.default_rng([SEED_BASE, _label_index(label), index])
     scenario = spec.scenarios[index % len(spec.scenarios)]
     built = scenario.endswith("built")
-    tle = scene_tle if built else open_tle
+    base, _ = load_profile_dict(spec.base)
+    letters = fx.build(base).constellations.letters()
+    tle = scene_tle if built or letters != "G" else open_tle
     eph = load_tle(tle)
     t0 = float(np.floor(eph.epoch_center_unix_s + rng.uniform(-2, 2) * 86400.0))
+    if letters != "G":
+        tle = os.pathsep.join([tle, *_other_systems_sets(letters, t0)])
+        eph = load_tle_sets(tle.split(os.pathsep), systems_kept=letters)
     t = t0 + np.arange(DURATION_S + 1.0)
     if built:
         georef = Georef(scene.lat_deg, scene.lon_deg, scene.alt_hae_m)
@@ -328,7 +360,6 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
         georef = Georef(round(float(rng.uniform(-55, 55)), 4),
                         round(float(rng.uniform(-180, 180)), 4), 100.0)
         enu = _moving_enu(rng, t) if scenario.startswith("moving") else np.zeros((t.size, 3))
-    base, _ = load_profile_dict(spec.base)
     withheld = fx.apply(base, spec.withhold)
     injected: dict = {}
     if spec.effects:
@@ -358,11 +389,29 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
             for ti, a, b, c in zip(t, lat, lon, alt, strict=True)))
         truth = str(truth_path)
     prof_path = work / f"{tag}-profile.toml"
-    withheld = dict(withheld, name=f"{spec.base}-without-{label}" if spec.effects
-                    else spec.base)
+    name = base.get("name") or Path(spec.base).stem
+    withheld = dict(withheld, name=f"{name}-without-{'+'.join(spec.effects)}" if spec.effects
+                    else name)
     prof_path.write_text(fx.to_toml(withheld), encoding="utf-8")
     return Trial(label, index, scenario, injected, real, truth,
                  scene_dir if built else None, tle, prof_path)
+
+
+def _other_systems_sets(letters: str, t_unix_s: float) -> list[str]:
+    """The TLE sets nearest ``t_unix_s`` of each system but GPS in ``letters`` that has sets
+    (a system without any is left out, as the gap tool leaves it out)."""
+    from virtualgps.exceptions import ConfigError
+    from virtualgps.sky import systems
+    from virtualgps.sky.skytime import choose_tle_set
+
+    paths = []
+    for x in letters:
+        if x != "G" and x in systems.GROUPS:
+            try:
+                paths.append(str(choose_tle_set(None, None, t_unix_s, systems.GROUPS[x])[0]))
+            except ConfigError:  # (no set of it at hand: e.g. no BeiDou set is bundled)
+                continue
+    return paths
 
 
 def _label_index(label: str) -> int:
