@@ -69,6 +69,12 @@ def _param_cell(effect: str, trials: list[dict]) -> str:
             f"{sum(cov)}/{len(cov)})")
 
 
+def _change(fraction: float) -> str:
+    """A relative change as a signed percentage: −92 %, +5 %, 0 % (no "−-0 %")."""
+    pct = round(100 * fraction)
+    return f"−{-pct} %" if pct < 0 else f"+{pct} %" if pct > 0 else "0 %"
+
+
 def table(result: dict) -> str:
     """The markdown table of one self-check result."""
     out = ["| trials | right | ranked first where wrong | parameter: injected → recovered, "
@@ -84,7 +90,7 @@ def table(result: dict) -> str:
         cell = _param_cell(effect, trials) if effect and s["kind"] != "pair" else "—"
         blind = sum(bool(t.get("outer_not_judged")) for t in trials)
         out.append(f"| `{label}` | {s['success']}/{s['trials']} | {instead} | {cell} | "
-                   + (f"−{100 * np.median(shrink):.0f} %" if shrink else "—")
+                   + (_change(-float(np.median(shrink))) if shrink else "—")
                    + (f" (an added effect not judgeable in {blind}/{len(trials)})" if blind
                       else "") + " |")
     return "\n".join(out)
