@@ -296,9 +296,11 @@ def spec_of(label: str) -> Spec:
 
 
 # Null trials: logs made by the profile under test itself, in each kind of place (any other
-# profile, a name or a TOML path: in all four).
+# profile, a name or a TOML path: in all four). A self-check runs these profiles' by default:
+# the MTK, the paper's, and a multi-system u-blox (its log and diagnosis on GPS and GLONASS).
 ALL_SCENARIOS = ("static_open", "moving_open", "static_built", "moving_built")
-NULL_SCENARIOS = {"holux-m1000": ALL_SCENARIOS, "usarsim": ("static_open", "moving_open")}
+NULL_SCENARIOS = {"holux-m1000": ALL_SCENARIOS, "usarsim": ("static_open", "moving_open"),
+                  "ublox-m8n": ALL_SCENARIOS}
 
 
 # Two effects at once, on the profile both are withheld from, where both can show.
