@@ -92,6 +92,22 @@ def test_fetched_sets_are_candidates_and_ties_go_scene_then_fetched_then_bundled
     assert path == scene_tle and "the scene's set" in line, line
 
 
+def test_each_system_gets_its_own_nearest_set_and_one_without_any_is_left_out(sets):
+    """:func:`skytime.choose_system_sets` (run, replay, gap and the self-check's trials): GPS
+    among the scene's and the bundled sets, GLONASS among its own group's alone; BeiDou and
+    QZSS, of which nothing is at hand here, are named as missing, not raised."""
+    bundled, scene_tle, _ = sets
+    shutil.copy(EPH / "glo-ops-2017-03-28.tle", bundled / "glo-ops-2017-03-28.tle")
+    found, missing = skytime.choose_system_sets("GRCJ", parse_time("2017-03-11T00:00:00Z"),
+                                                scene_tle)
+    assert [path for path, _ in found] == [scene_tle, bundled / "glo-ops-2017-03-28.tle"]
+    assert "(the scene's set;" in found[0][1] and "the nearest of 1 sets" in found[1][1]
+    assert [name for name, _ in missing] == ["BeiDou", "QZSS"]
+    assert "no beidou TLE set is at hand" in str(missing[0][1])
+    assert "no QZSS TLE sets are bundled" in str(missing[1][1])
+    assert skytime.choose_system_sets("R", T_0328, scene_tle)[0][0][0].name.startswith("glo-ops")
+
+
 def test_unreadable_candidates_are_skipped(sets):
     bundled, scene_tle, _ = sets
     scene_tle.write_text("this is no TLE set\n")

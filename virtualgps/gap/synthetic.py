@@ -340,6 +340,7 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
     ``Trial.tle`` then joins the sets' paths with ``os.pathsep``.
     """
     from virtualgps.sky.ephemeris import load_tle, load_tle_sets
+    from virtualgps.sky.skytime import choose_system_sets
 
     spec = spec_of(label)
     rng = np.random.default_rng([SEED_BASE, _label_index(label), index])
@@ -351,7 +352,8 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
     eph = load_tle(tle)
     t0 = float(np.floor(eph.epoch_center_unix_s + rng.uniform(-2, 2) * 86400.0))
     if letters != "G":
-        tle = os.pathsep.join([tle, *_other_systems_sets(letters, t0)])
+        others, _ = choose_system_sets(letters.replace("G", ""), t0)  # (none: left out)
+        tle = os.pathsep.join([tle, *(str(path) for path, _ in others)])
         eph = load_tle_sets(tle.split(os.pathsep), systems_kept=letters)
     t = t0 + np.arange(DURATION_S + 1.0)
     if built:
@@ -397,23 +399,6 @@ def make_trial(label: str, index: int, work: Path, scene, scene_dir: str, scene_
     prof_path.write_text(fx.to_toml(withheld), encoding="utf-8")
     return Trial(label, index, scenario, injected, real, truth,
                  scene_dir if built else None, tle, prof_path)
-
-
-def _other_systems_sets(letters: str, t_unix_s: float) -> list[str]:
-    """The TLE sets nearest ``t_unix_s`` of each system but GPS in ``letters`` that has sets
-    (a system without any is left out, as the gap tool leaves it out)."""
-    from virtualgps.exceptions import ConfigError
-    from virtualgps.sky import systems
-    from virtualgps.sky.skytime import choose_tle_set
-
-    paths = []
-    for x in letters:
-        if x != "G" and x in systems.GROUPS:
-            try:
-                paths.append(str(choose_tle_set(None, None, t_unix_s, systems.GROUPS[x])[0]))
-            except ConfigError:  # (no set of it at hand: e.g. no BeiDou set is bundled)
-                continue
-    return paths
 
 
 def _label_index(label: str) -> int:

@@ -37,7 +37,7 @@ from virtualgps.receiver.profiles import build_profile, load_profile_dict
 from virtualgps.run.config import coverage_note
 from virtualgps.sky import ephemeris as eph
 from virtualgps.sky import systems
-from virtualgps.sky.skytime import choose_tle_set
+from virtualgps.sky.skytime import choose_system_sets, choose_tle_set
 
 log = logging.getLogger(__name__)
 
@@ -139,21 +139,13 @@ def load_inputs(inp: GapInputs):
         # the same rule as run and replay: per system, the set nearest the first run's start
         tle, line = choose_tle_set(None, Path(scene_tle) if scene_tle else None, t0)
         log.info("%s", line)
-        tles = [str(tle)]
         wanted = set(profile.constellations.letters()) | set(logged_systems(runs))
-        for letter in sorted(wanted - {"G"}):
-            group = systems.GROUPS.get(letter)
-            try:
-                if group is None:
-                    raise ConfigError(f"no {systems.system_named(letter).name} TLE sets are "
-                                      "bundled")
-                path, line = choose_tle_set(None, None, t0, group)
-            except ConfigError as exc:
-                log.info("ephemeris: %s satellites left out (%s; give --tle with a set of "
-                         "them)", systems.system_named(letter).name, exc)
-                continue
+        found, missing = choose_system_sets("".join(sorted(wanted - {"G"})), t0)
+        for _, line in found:
             log.info("%s", line)
-            tles.append(str(path))
+        for name, exc in missing:
+            log.info("ephemeris: %s satellites left out (%s)", name, exc)
+        tles = [str(tle), *(str(path) for path, _ in found)]
     scene_dir = str(spath.parent if spath.is_file() else spath) if spath is not None else None
     return runs, scene, scene_dir, os.pathsep.join(tles), table, source
 

@@ -24,8 +24,7 @@ from virtualgps.receiver.definition import Georef, Receiver
 from virtualgps.receiver.params import Profile
 from virtualgps.receiver.profiles import DEFAULT_PROFILE, RUN_KEYS, load_profile
 from virtualgps.sky import ephemeris as eph
-from virtualgps.sky import systems
-from virtualgps.sky.skytime import choose_tle_set
+from virtualgps.sky.skytime import choose_system_sets, choose_tle_set
 from virtualgps.tomlfile import read_toml
 
 log = logging.getLogger(__name__)
@@ -244,22 +243,13 @@ def load_ephemeris(cfg: RunConfig, scene_tle: Path | None, t_start_unix_s: float
     if not cfg.tle and others:  # e.g. sky --systems GPS,GLONASS: a set per system's group
         # A system whose set is nowhere at hand is left out with one warning (a built-in
         # profile must run as installed: no BeiDou set is bundled); none at all is an error.
-        paths, missing = [], []
-        for letter in dict.fromkeys(["G"] * ("G" in systems_kept) + others):
-            name = systems.system_named(letter).name
-            try:
-                if letter not in systems.GROUPS:
-                    raise ConfigError(f"no {name} TLE sets are bundled: give one with --tle "
-                                      "PATH")
-                path, line = choose_tle_set(None, scene_tle if letter == "G" else None,
-                                            t_start_unix_s, systems.GROUPS[letter])
-            except ConfigError as exc:
-                missing.append((name, exc))
-                continue
-            log.info("%s", line)
-            paths.append(path)
-        if not paths:
+        found, missing = choose_system_sets("G" * ("G" in systems_kept) + "".join(others),
+                                            t_start_unix_s, scene_tle)
+        if not found:
             raise missing[0][1]
+        for _, line in found:
+            log.info("%s", line)
+        paths = [path for path, _ in found]
         for name, exc in missing:
             log.warning("ephemeris: %s satellites left out (%s, or fetch the sets with "
                         "'virtualgps ephemeris fetch')", name, exc)

@@ -113,3 +113,34 @@ def choose_tle_set(tle: str | Path | None, scene_tle: Path | None,
     day = time.strftime("%Y-%m-%d", time.gmtime(epoch))
     return path, (f"ephemeris: {path.name} ({why}; epoch {day}, {abs(t - epoch) / 86400.0:.1f} "
                   f"days from the run's start, the nearest of {len(seen)} sets)")
+
+
+def choose_system_sets(letters: str, t_unix_s: float | None, scene_tle: Path | None = None
+                       ) -> tuple[list[tuple[Path, str]], list[tuple[str, ConfigError]]]:
+    """Per system, the TLE set nearest the run's start (:func:`choose_tle_set` with the
+    system's group; the scene's set is a candidate for GPS alone): what ``run``, ``replay``,
+    ``gap`` and the self-check's trials choose when no ``--tle`` is given.
+
+    Parameters
+    ----------
+    letters : RINEX letters of the systems, in the order wanted (e.g. ``"GR"``)
+    t_unix_s : the run's start, UTC seconds (None: now); scene_tle : the scene's set, or None
+
+    Returns
+    -------
+    found : (path, the line saying why) per system with a set at hand, in ``letters``' order
+    missing : (system name, the reason) per system with none (no sets of it are bundled or
+        fetched, e.g. BeiDou)
+    """
+    found: list[tuple[Path, str]] = []
+    missing: list[tuple[str, ConfigError]] = []
+    for letter in dict.fromkeys(letters):
+        name = systems.system_named(letter).name
+        try:
+            if letter not in systems.GROUPS:
+                raise ConfigError(f"no {name} TLE sets are bundled: give one with --tle PATH")
+            found.append(choose_tle_set(None, scene_tle if letter == "G" else None, t_unix_s,
+                                        systems.GROUPS[letter]))
+        except ConfigError as exc:
+            missing.append((name, exc))
+    return found, missing
